@@ -1,0 +1,94 @@
+"""The `taco-mav` command: parse arguments, call one importable function, map TacoError to an exit code."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+from taco_mav.errors import TacoError
+
+log = logging.getLogger("taco_mav")
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from taco_mav.bench import run_bench
+
+    only = args.only.split(",") if args.only else None
+    results = run_bench(Path(args.out), only=only, progress=not args.quiet)
+    for key in sorted(results):
+        print(f"{key:45s} {results[key]}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_world(args: argparse.Namespace) -> int:
+    from taco_mav.datasets.synthetic import build_world
+
+    centre = None
+    if args.centre:
+        try:
+            lat, lon = (float(v) for v in args.centre.split(","))
+        except ValueError:
+            raise TacoError(f"--centre: expected LAT,LON, got {args.centre!r}") from None
+        centre = (lat, lon)
+    path = build_world(Path(args.out), seed=args.seed, length_km=args.length_km, centre=centre,
+                       along_drive=Path(args.along_drive) if args.along_drive else None,
+                       imu_preset=args.imu, progress=not args.quiet)
+    print(f"wrote world {path}")
+    return 0
+
+
+def _not_yet(issue: int) -> Callable[[argparse.Namespace], int]:
+    def run(args: argparse.Namespace) -> int:
+        print(f"taco-mav {args.command}: not yet implemented (tracked in issue {issue})", file=sys.stderr)
+        return 2
+
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="taco-mav", description="GNSS substitute for ground robots (TACO over MAVLink)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-q", "--quiet", action="store_true", help="warnings only, no progress bars")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("bench", help="speed/accuracy benchmarks to JSON")
+    p.add_argument("--out", required=True, help="output JSON file")
+    p.add_argument("--only", help="comma-separated section names (e.g. fusion)")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("world", help="generate a synthetic world + drive in KITTI raw layout")
+    p.add_argument("--out", required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--length-km", type=float, default=1.0)
+    p.add_argument("--centre", help="LAT,LON of the world centre (default near Karlsruhe)")
+    p.add_argument("--along-drive", help="a KITTI raw drive directory whose GPS track the roads follow")
+    p.add_argument("--imu", default="automotive", help="IMU noise preset: automotive | rt3003 | none")
+    p.set_defaults(func=_cmd_world)
+
+    for name, issue in (("eval", 5), ("run", 6), ("sim", 6), ("demo", 6)):
+        p = sub.add_parser(name, help=f"(issue {issue})")
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(func=_not_yet(issue))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except TacoError as exc:
+        print(f"taco-mav {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

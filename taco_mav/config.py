@@ -1,0 +1,357 @@
+"""Vehicle profiles: frozen dataclasses with the paper's values as defaults, loaded from YAML.
+
+Every TACO parameter is named here, defaulted to the value in `../shared/paper/TACO.tex`, and cited by
+section ("Sec. III-B" = Methodology, IMU Preintegration and Error Model; III-D = Triggering and Multi-Crop
+Search; III-E = Yaw-Residual Gate; III-F = UKF Fusion; III-G = Factor Graph and Loop Closure; IV = Results).
+Values the paper does not give are marked "not in the paper" with the reason for our choice.
+
+A profile YAML mirrors the nesting of `Profile`; any key it leaves out keeps its default. Unknown keys,
+wrong types and out-of-range values raise `ConfigError` naming the file and the dotted key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from taco_mav.errors import ConfigError
+
+
+class Estimator(enum.Enum):
+    """Estimator mode: the paper exactly, or our improvements (issue 7)."""
+
+    PAPER = "paper"
+    TACO_PLUS = "taco+"
+
+
+def _rng(lo: float | None = None, hi: float | None = None, *, open_lo: bool = False) -> dict[str, Any]:
+    return {"range": (lo, hi, open_lo)}
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """IMU characteristics and preintegration settings."""
+
+    # sigma_omega: gyro angle random walk, rad/sqrt(s) (Sec. III-B: "calibrated to the platform's IMU";
+    # the paper gives no number). Default: 0.3 deg/sqrt(h), an automotive-grade MEMS gyro.
+    gyro_arw: float = field(default=math.radians(0.3) / 60.0, metadata=_rng(0.0, 1.0))
+    # Camera/filter frame rate, Hz: the UKF predicts on preintegrated increments at this rate (Sec. IV-A:
+    # 10 Hz camera; Sec. III-F: process noise is per camera-rate frame).
+    frame_rate_hz: float = field(default=10.0, metadata=_rng(0.5, 100.0, open_lo=True))
+    # Corner frequency of the first-order high-pass applied to the forward acceleration before sigma_a is
+    # taken (Sec. III-B names the filter, not its corner; 0.2 Hz keeps manoeuvres, drops the constant bias).
+    accel_highpass_hz: float = field(default=0.2, metadata=_rng(0.0, 10.0, open_lo=True))
+    # Ground vehicles rarely reverse; with False the integrated speed is clamped at zero (not in the paper).
+    allow_reverse: bool = False
+    # Longest IMU gap integrated as one step, s; longer gaps are integrated as this much (not in the paper).
+    max_dt_s: float = field(default=0.5, metadata=_rng(0.0, 10.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class ErrorModelConfig:
+    """IMU error envelope, Sec. III-B, eq. (1) and the composite trigger value."""
+
+    cross_k: float = field(default=3.0, metadata=_rng(0.0))  # 3-sigma inflation of d(T) sigma_w sqrt(T)
+    along_k: float = field(default=0.5, metadata=_rng(0.0))  # 1/2 sigma_a(T) T^2
+    divergence_k: float = field(default=0.03, metadata=_rng(0.0))  # floor 0.03 d_div
+
+
+@dataclass(frozen=True)
+class TriggerConfig:
+    """Dual trigger and five-point forward-biased search, Sec. III-D."""
+
+    epsilon_m: float = field(default=1.0, metadata=_rng(0.0, open_lo=True))  # fire when eps_IMU >= 1.0 m
+    time_s: float = field(default=2.0, metadata=_rng(0.0, open_lo=True))  # or >= 2.0 s since last fix
+    forward_bias: bool = True  # ablation "no forward bias" sets False
+    forward_bias_k: float = field(default=0.4, metadata=_rng(0.0))  # delta = min(0.4 eps, 15 m)
+    forward_bias_cap_m: float = field(default=15.0, metadata=_rng(0.0))
+    multi_crop: bool = True  # ablation "single crop" sets False (only the centre crop)
+    cross_k: float = field(default=0.5, metadata=_rng(0.0))  # d = min(0.5 eps, 10 m)
+    cross_cap_m: float = field(default=10.0, metadata=_rng(0.0))
+    # A query unanswered after this long is dropped so a new one can be issued (not in the paper).
+    query_timeout_s: float = field(default=5.0, metadata=_rng(0.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """Yaw-residual gate, Sec. III-E."""
+
+    enabled: bool = True  # ablation "no yaw gate" sets False
+    yaw_residual_max_rad: float = field(default=0.35, metadata=_rng(0.0, math.pi))  # |psi_res| > 0.35 rejects
+
+
+@dataclass(frozen=True)
+class UkfConfig:
+    """3-state UKF with anisotropic CVGL noise, Sec. III-F."""
+
+    alpha: float = field(default=1e-3, metadata=_rng(0.0, 1.0, open_lo=True))  # van der Merwe alpha
+    beta: float = field(default=2.0, metadata=_rng(0.0))  # van der Merwe beta
+    kappa: float = 0.0  # van der Merwe kappa
+    # Process noise per camera-rate frame (scaled with dt / frame period): sigma_fwd = max(1.0, 2.0 eps) m,
+    # sigma_lat = max(1.5, 0.3 eps) m, sigma_theta = 0.05 rad.
+    sigma_fwd_min_m: float = field(default=1.0, metadata=_rng(0.0))
+    sigma_fwd_k: float = field(default=2.0, metadata=_rng(0.0))
+    sigma_lat_min_m: float = field(default=1.5, metadata=_rng(0.0))
+    sigma_lat_k: float = field(default=0.3, metadata=_rng(0.0))
+    sigma_theta_rad: float = field(default=0.05, metadata=_rng(0.0))
+    # Per-fix measurement sigmas: sigma_fwd,w = clip(1.5 / w, 0.5, 8.0), sigma_lat,w = clip(3.0 / w, 1.0, 12.0).
+    fix_fwd_num: float = field(default=1.5, metadata=_rng(0.0, open_lo=True))
+    fix_fwd_min_m: float = field(default=0.5, metadata=_rng(0.0, open_lo=True))
+    fix_fwd_max_m: float = field(default=8.0, metadata=_rng(0.0, open_lo=True))
+    fix_lat_num: float = field(default=3.0, metadata=_rng(0.0, open_lo=True))
+    fix_lat_min_m: float = field(default=1.0, metadata=_rng(0.0, open_lo=True))
+    fix_lat_max_m: float = field(default=12.0, metadata=_rng(0.0, open_lo=True))
+    anisotropic: bool = True  # ablation "isotropic noise": both sigmas = their mean
+    # Heading is supplied by the compass (Sec. III-B); we fuse it as a heading measurement with this 1-sigma
+    # at every frame so the heading variance stays bounded (the paper states the source, not the sigma).
+    compass_sigma_rad: float = field(default=0.05, metadata=_rng(0.0, open_lo=True))
+    # Initial 1-sigma of position and heading at the start-up GNSS reading (not in the paper; the smoother's
+    # origin prior uses 0.01, Sec. III-G).
+    initial_sigma_xy_m: float = field(default=0.01, metadata=_rng(0.0, open_lo=True))
+    initial_sigma_theta_rad: float = field(default=0.05, metadata=_rng(0.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class SmootherConfig:
+    """Pose2 factor graph with vetted loop closures, Sec. III-G."""
+
+    enabled: bool = True  # ablation "UKF only" sets False
+    origin_sigma: float = field(default=0.01, metadata=_rng(0.0, open_lo=True))
+    nonholonomic_sigma_m: float = field(default=1.0, metadata=_rng(0.0, open_lo=True))
+    lc_max_chord_m: float = field(default=50.0, metadata=_rng(0.0))
+    lc_min_frame_gap: int = field(default=30, metadata=_rng(1))
+    lc_min_path_ratio: float = field(default=5.0, metadata=_rng(0.0))
+    lc_sigma_floor_m: float = field(default=0.5, metadata=_rng(0.0, open_lo=True))
+    lm_max_iterations: int = field(default=100, metadata=_rng(1))
+    lm_relative_tolerance: float = field(default=1e-5, metadata=_rng(0.0, open_lo=True))
+    savgol_window: int = field(default=15, metadata=_rng(0))  # 0 disables the Savitzky-Golay pass
+    savgol_order: int = field(default=3, metadata=_rng(0))
+
+
+@dataclass(frozen=True)
+class LatencyConfig:
+    """Delayed fixes (not in the paper: it applies fixes as if current)."""
+
+    # Apply each fix at its arrival as if it were current (the naive way) instead of at its capture time.
+    apply_on_arrival: bool = False
+    # How far back a fix may reach, s: filter states and increments for this long are kept.
+    history_s: float = field(default=10.0, metadata=_rng(0.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Pinhole camera looking forward from the vehicle. Defaults: KITTI image_02 (rectified P2)."""
+
+    width_px: int = field(default=1242, metadata=_rng(1))
+    height_px: int = field(default=375, metadata=_rng(1))
+    fx: float = field(default=721.5377, metadata=_rng(0.0, open_lo=True))
+    fy: float = field(default=721.5377, metadata=_rng(0.0, open_lo=True))
+    cx: float = 609.5593
+    cy: float = 172.854
+    mount_height_m: float = field(default=1.65, metadata=_rng(0.0, open_lo=True))  # KITTI cameras: 1.65 m
+    pitch_rad: float = field(default=0.0, metadata=_rng(-1.0, 1.0))  # positive = looking down
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Satellite crops handed to the matcher (Sec. III-C)."""
+
+    crop_size_px: int = field(default=512, metadata=_rng(16, 4096))
+    # Mosaic resolution expected by the matcher, m/px; crops are resampled to it (zoom 19: ~0.3 m/px at
+    # Karlsruhe's latitude, Sec. III-C; FG2's KITTI crops are ~0.2 m/px).
+    crop_m_per_px: float = field(default=0.2, metadata=_rng(0.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class ClassicalMatcherConfig:
+    """Classical matcher: inverse perspective mapping + FFT correlation (CPU)."""
+
+    bev_size_px: int = field(default=256, metadata=_rng(16, 2048))
+    bev_m_per_px: float = field(default=0.2, metadata=_rng(0.0, open_lo=True))
+    max_range_m: float = field(default=40.0, metadata=_rng(1.0))
+    rotation_range_rad: float = field(default=math.radians(10.0), metadata=_rng(0.0, math.pi))
+    rotation_step_rad: float = field(default=math.radians(2.0), metadata=_rng(0.0, math.pi, open_lo=True))
+    psr_at_half_weight: float = field(default=8.0, metadata=_rng(0.0, open_lo=True))
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """FG2-statistics emulator (a statistical model of FG2 on KITTI, not a matcher)."""
+
+    capture_radius_m: float = field(default=20.0, metadata=_rng(0.0, open_lo=True))  # Sec. III-D
+    median_error_m: float = field(default=0.51, metadata=_rng(0.0, open_lo=True))  # FG2 KITTI same-area
+    mean_error_m: float = field(default=0.75, metadata=_rng(0.0, open_lo=True))
+    cross_area_median_error_m: float = field(default=4.15, metadata=_rng(0.0, open_lo=True))  # cross-area
+    cross_area_mean_error_m: float = field(default=7.31, metadata=_rng(0.0, open_lo=True))
+    cross_area_sequences: tuple[str, ...] = ("00", "06")  # Sec. IV-A
+    yaw_noise_rad: float = field(default=0.03, metadata=_rng(0.0))
+    symmetric_lock_rate: float = field(default=0.03, metadata=_rng(0.0, 1.0))
+    silent_outlier_rate: float = field(default=0.01, metadata=_rng(0.0, 1.0))
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Fg2Config:
+    """FG2 adapter (extra `fg2`): user-provided checkout and checkpoint."""
+
+    checkout: str = ""
+    checkpoint: str = ""
+    device: str = "auto"  # "auto", "cpu" or "cuda"
+    fp16: bool = True  # autocast on CUDA (Sec. IV-D)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A whole vehicle profile."""
+
+    name: str = "default"
+    estimator: Estimator = Estimator.PAPER
+    matcher: str = "classical"  # classical | emulator | fg2
+    imu: ImuConfig = ImuConfig()
+    error_model: ErrorModelConfig = ErrorModelConfig()
+    trigger: TriggerConfig = TriggerConfig()
+    gate: GateConfig = GateConfig()
+    ukf: UkfConfig = UkfConfig()
+    smoother: SmootherConfig = SmootherConfig()
+    latency: LatencyConfig = LatencyConfig()
+    camera: CameraConfig = CameraConfig()
+    map: MapConfig = MapConfig()
+    classical: ClassicalMatcherConfig = ClassicalMatcherConfig()
+    emulator: EmulatorConfig = EmulatorConfig()
+    fg2: Fg2Config = Fg2Config()
+
+
+_MATCHERS = ("classical", "emulator", "fg2")
+
+
+def _convert(value: Any, tp: Any, where: str) -> Any:
+    """Check and convert one YAML value against a type annotation; `where` names file and key."""
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
+        return _build(tp, value, where)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _convert(value, inner[0], where)
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        try:
+            return tp(value)
+        except ValueError:
+            allowed = ", ".join(repr(m.value) for m in tp)
+            raise ConfigError(f"{where}: {value!r} is not one of {allowed}") from None
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
+        (elem, _ellipsis) = typing.get_args(tp)
+        return tuple(_convert(v, elem, f"{where}[{i}]") for i, v in enumerate(value))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, (str, int)) or isinstance(value, bool):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return str(value)
+    raise ConfigError(f"{where}: unsupported type {tp!r}")  # pragma: no cover - a bug in this module
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs: dict[str, Any] = {}
+    for key, value in data.items():
+        key_where = f"{where}.{key}" if not where.endswith(":") else f"{where} {key}"
+        if key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(f"{key_where}: unknown key (known: {known})")
+        converted = _convert(value, hints[key], key_where)
+        lo, hi, open_lo = fields[key].metadata.get("range", (None, None, False))
+        if isinstance(converted, (int, float)) and not isinstance(converted, bool):
+            if lo is not None and (converted < lo or (open_lo and converted == lo)):
+                raise ConfigError(f"{key_where}: {converted} is out of range (must be {'>' if open_lo else '>='} {lo})")
+            if hi is not None and converted > hi:
+                raise ConfigError(f"{key_where}: {converted} is out of range (must be <= {hi})")
+        kwargs[key] = converted
+    return cls(**kwargs)
+
+
+def profile_from_dict(data: dict[str, Any], source: str = "<dict>") -> Profile:
+    """Build a Profile from a nested mapping; `source` names the file in error messages."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a profile must be a mapping at the top level")
+    profile = _build(Profile, data, f"{source}:")
+    if profile.matcher not in _MATCHERS:
+        raise ConfigError(f"{source}: matcher: {profile.matcher!r} is not one of {', '.join(_MATCHERS)}")
+    return profile
+
+
+PROFILE_DIR = Path(__file__).resolve().parent.parent / "vehicle_profiles"
+
+
+def resolve_profile_path(name_or_path: str | Path) -> Path:
+    """A path as given, or a bare name looked up in ./vehicle_profiles then the installed profiles."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{path}: profile file not found")
+        return path
+    for folder in (Path.cwd() / "vehicle_profiles", PROFILE_DIR):
+        candidate = folder / f"{name_or_path}.yaml"
+        if candidate.is_file():
+            return candidate
+    raise ConfigError(f"{name_or_path}: no such profile (looked for {name_or_path}.yaml in ./vehicle_profiles and {PROFILE_DIR})")
+
+
+def load_profile(name_or_path: str | Path) -> Profile:
+    """Load a vehicle profile by path or by name; errors name the file and the key."""
+    path = resolve_profile_path(name_or_path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    return profile_from_dict(data, str(path))
+
+
+def replace_in(profile: Profile, dotted: str, value: Any) -> Profile:
+    """Return a copy with one nested field replaced, e.g. replace_in(p, "gate.enabled", False)."""
+    head, _, rest = dotted.partition(".")
+    if not rest:
+        return dataclasses.replace(profile, **{head: value})
+    return dataclasses.replace(profile, **{head: replace_in(getattr(profile, head), rest, value)})
+
+
+def profile_to_dict(obj: Any) -> Any:
+    """A plain, YAML/JSON-ready mapping of a profile (the resolved config written beside results)."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: profile_to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, tuple):
+        return [profile_to_dict(v) for v in obj]
+    return obj

@@ -1,0 +1,95 @@
+"""Value types shared by the estimator, the matchers, the datasets and the link.
+
+Frames and units (see DESIGN.md):
+- world: UTM easting/northing metres (ENU) relative to the start-up fix; heading theta 0 = east, CCW positive.
+- body (IMU): FRD; specific force in m/s^2 (gravity included, as RAW_IMU reports it), gyro in rad/s.
+- attitude: roll, pitch, yaw in radians, NED (yaw 0 = north, CW positive).
+- planar body frame for increments and crop offsets: (forward, left) metres, dtheta CCW radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """One IMU sample as an autopilot reports it.
+
+    t: seconds on the autopilot clock. accel_frd: body FRD specific force, m/s^2 (level at rest: z = -9.81).
+    gyro_frd: body FRD angular rate, rad/s. roll, pitch, yaw: attitude in radians, NED (yaw 0 = north, CW).
+    """
+
+    t: float
+    accel_frd: tuple[float, float, float]
+    gyro_frd: tuple[float, float, float]
+    roll: float
+    pitch: float
+    yaw: float
+
+
+@dataclass(frozen=True, slots=True)
+class MatchResult:
+    """One matcher answer for one crop (paper Sec. III-C: the tuple (R, t, w)).
+
+    R: 2x2 residual rotation between the matcher's heading and the query heading (psi_res = atan2(R10, R00),
+    CCW positive). t: the vehicle position relative to the crop centre, metres, in the crop's heading-up frame
+    expressed as (forward, left): forward = image up, left = image left. w: match weight in (0, 1].
+    elapsed_s: wall time the matcher spent on this crop (the batch time divided among crops).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    w: float
+    elapsed_s: float = 0.0
+
+    @property
+    def yaw_residual(self) -> float:
+        """psi_res = atan2(R[1,0], R[0,0]), radians (paper Sec. III-E)."""
+        return float(np.arctan2(self.R[1, 0], self.R[0, 0]))
+
+
+@dataclass(frozen=True, slots=True)
+class FixQuery:
+    """What the Localiser asks the matcher for when its trigger fires (paper Sec. III-D).
+
+    capture_t: autopilot time of the frame to match, seconds. centre: forward-biased search centre, ENU metres
+    (shape (2,)). heading: compass heading theta at capture, ENU radians (0 = east, CCW). offsets_body: the
+    five body-frame offsets (forward, left) metres, shape (5, 2), in order back, centre, forward, left, right
+    is NOT implied: use crop_centres for world positions. crop_centres: ENU metres, shape (K, 2).
+    epsilon: the IMU error envelope that sized the search, metres. query_id: monotonically increasing id.
+    """
+
+    query_id: int
+    capture_t: float
+    centre: np.ndarray
+    heading: float
+    offsets_body: np.ndarray
+    crop_centres: np.ndarray
+    epsilon: float
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The Localiser's current state.
+
+    t: autopilot time, seconds. xy: ENU metres relative to the origin, shape (2,). theta: heading, ENU radians.
+    speed: forward speed, m/s. cov_xy: 2x2 position covariance, m^2. epsilon: IMU error envelope, metres.
+    since_fix_s: seconds since the last accepted fix (or since start).
+    """
+
+    t: float
+    xy: np.ndarray
+    theta: float
+    speed: float
+    cov_xy: np.ndarray
+    epsilon: float
+    since_fix_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def sigma_h(self) -> float:
+        """1-sigma horizontal accuracy, metres: sqrt of the largest eigenvalue of cov_xy."""
+        return float(np.sqrt(max(np.linalg.eigvalsh(self.cov_xy).max(), 0.0)))

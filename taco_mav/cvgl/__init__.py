@@ -1,0 +1,1 @@
+"""Cross-view geo-localisation: the satellite map service and the matchers behind one protocol."""

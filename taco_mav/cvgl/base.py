@@ -1,0 +1,58 @@
+"""The matcher contract (paper Sec. III-C): frames, units and shapes, stated once.
+
+A trigger asks for K crops (K = 5 in paper mode) of the satellite mosaic, each centred on a candidate UTM
+position and rotated heading-up (the query heading theta points to image-up; h_img = pi/2 - theta). The
+matcher gets the one ground frame and the K crops and returns K `MatchResult`s in the same order:
+
+- R: 2x2 residual rotation of the matcher's heading against the query heading (CCW positive);
+- t: the vehicle's position relative to the crop centre, metres, as (forward, left) in the heading-up crop
+  (forward = image up, left = image left);
+- w: match weight in (0, 1]; higher is more confident.
+
+`taco_mav.core.search.fix_position` turns (crop centre, heading, t) into a world fix; nothing else does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.core.types import MatchResult
+
+__all__ = ["Crop", "GroundFrame", "Matcher", "MatchResult"]
+
+
+@dataclass(frozen=True)
+class Crop:
+    """A heading-up satellite crop. image: uint8 RGB (S, S, 3); centre_utm: (2,) absolute UTM E, N metres of
+    the crop centre; heading: the query heading, ENU radians; m_per_px: metres per pixel; valid_fraction: share
+    of pixels that came from the mosaic (1.0 = fully on the map)."""
+
+    image: np.ndarray
+    centre_utm: np.ndarray
+    heading: float
+    m_per_px: float
+    valid_fraction: float = 1.0
+
+
+@dataclass(frozen=True)
+class GroundFrame:
+    """A ground camera frame. image: uint8 RGB (H, W, 3); t: capture time on the autopilot clock, s;
+    camera: its flat-ground pinhole model."""
+
+    image: np.ndarray
+    t: float
+    camera: GroundCamera
+
+
+class Matcher(Protocol):
+    """Anything that localises one ground frame against K heading-up crops."""
+
+    name: str
+
+    def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
+        """One MatchResult per crop, in order."""
+        ...
