@@ -168,6 +168,12 @@ class MapConfig:
     # Mosaic resolution expected by the matcher, m/px; crops are resampled to it (zoom 19: ~0.3 m/px at
     # Karlsruhe's latitude, Sec. III-C; FG2's KITTI crops are ~0.2 m/px).
     crop_m_per_px: float = field(default=0.2, metadata=_rng(0.0, open_lo=True))
+    # A crop with a smaller share of on-map pixels raises OffMapError; above it, off-map pixels are zero and
+    # Crop.valid_fraction says how many were on the map (not in the paper).
+    min_valid_fraction: float = field(default=0.9, metadata=_rng(0.0, 1.0))
+    # Mosaics up to this size (decoded RGBA, MB) are read into memory at open; larger ones are read in cached
+    # 256 px blocks (not in the paper).
+    in_memory_max_mb: float = field(default=1024.0, metadata=_rng(0.0))
 
 
 @dataclass(frozen=True)
@@ -355,3 +361,35 @@ def profile_to_dict(obj: Any) -> Any:
     if isinstance(obj, tuple):
         return [profile_to_dict(v) for v in obj]
     return obj
+
+
+def localiser_params(profile: Profile) -> "LocaliserParams":
+    """The plain values the core Localiser takes, from a profile (core never sees the Profile itself)."""
+    from taco_mav.core.params import LocaliserParams
+    from taco_mav.core.smoother import SmootherParams
+
+    imu, em, tr, gate, ukf, sm, lat = (profile.imu, profile.error_model, profile.trigger, profile.gate,
+                                       profile.ukf, profile.smoother, profile.latency)
+    return LocaliserParams(
+        frame_rate_hz=imu.frame_rate_hz, gyro_arw=imu.gyro_arw, accel_highpass_hz=imu.accel_highpass_hz,
+        allow_reverse=imu.allow_reverse, max_dt_s=imu.max_dt_s,
+        error_cross_k=em.cross_k, error_along_k=em.along_k, error_divergence_k=em.divergence_k,
+        trigger_epsilon_m=tr.epsilon_m, trigger_time_s=tr.time_s, forward_bias=tr.forward_bias,
+        forward_bias_k=tr.forward_bias_k, forward_bias_cap_m=tr.forward_bias_cap_m, multi_crop=tr.multi_crop,
+        search_cross_k=tr.cross_k, cross_cap_m=tr.cross_cap_m, query_timeout_s=tr.query_timeout_s,
+        yaw_gate=gate.enabled, yaw_residual_max_rad=gate.yaw_residual_max_rad,
+        ukf_alpha=ukf.alpha, ukf_beta=ukf.beta, ukf_kappa=ukf.kappa,
+        sigma_fwd_min_m=ukf.sigma_fwd_min_m, sigma_fwd_k=ukf.sigma_fwd_k, sigma_lat_min_m=ukf.sigma_lat_min_m,
+        sigma_lat_k=ukf.sigma_lat_k, sigma_theta_rad=ukf.sigma_theta_rad,
+        fix_fwd_num=ukf.fix_fwd_num, fix_fwd_min_m=ukf.fix_fwd_min_m, fix_fwd_max_m=ukf.fix_fwd_max_m,
+        fix_lat_num=ukf.fix_lat_num, fix_lat_min_m=ukf.fix_lat_min_m, fix_lat_max_m=ukf.fix_lat_max_m,
+        anisotropic=ukf.anisotropic, compass_sigma_rad=ukf.compass_sigma_rad,
+        initial_sigma_xy_m=ukf.initial_sigma_xy_m, initial_sigma_theta_rad=ukf.initial_sigma_theta_rad,
+        apply_on_arrival=lat.apply_on_arrival, history_s=lat.history_s,
+        smoother=SmootherParams(
+            origin_sigma=sm.origin_sigma, nonholonomic_sigma_m=sm.nonholonomic_sigma_m,
+            lc_max_chord_m=sm.lc_max_chord_m, lc_min_frame_gap=sm.lc_min_frame_gap,
+            lc_min_path_ratio=sm.lc_min_path_ratio, lc_sigma_floor_m=sm.lc_sigma_floor_m,
+            lm_max_iterations=sm.lm_max_iterations, lm_relative_tolerance=sm.lm_relative_tolerance,
+            savgol_window=sm.savgol_window, savgol_order=sm.savgol_order),
+    )

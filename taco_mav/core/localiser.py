@@ -1,0 +1,304 @@
+"""The Localiser: the TACO pipeline (paper Fig. 2) as one object that the offline evaluator and the live
+daemon both drive.
+
+    loc = Localiser(params, t0, heading=..., speed=...)
+    loc.add_imu(sample)            # any rate, irregular dt; frame-rate UKF predict inside
+    q = loc.poll_query()           # a FixQuery when the trigger fired (capture time, centre, 5 crop centres)
+    loc.add_fix(q.query_id, five)  # the matcher's five MatchResults, possibly late: rewind, update, replay
+    loc.estimate()                 # Estimate(t, xy, theta, speed, cov_xy, ...)
+    loc.smoothed()                 # Pose2 smoother over the whole run (offline)
+
+World frame: ENU metres relative to the origin (the start-up GNSS reading); heading ENU radians.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, MomentAccumulator, Moments, error_terms
+from taco_mav.core.gate import passes_yaw_gate, yaw_residual
+from taco_mav.core.params import LocaliserParams
+from taco_mav.core.preintegration import Increment, Preintegrator
+from taco_mav.core.search import (TriggerReason, best_candidate, cross_offsets, cross_spacing, fix_position,
+                                  forward_bias, search_centres, trigger_reason)
+from taco_mav.core.smoother import FixNode, SmoothResult, smooth
+from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult
+from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
+
+
+@dataclass
+class _Tick:
+    """One processed filter frame, kept in the bounded history for delayed fixes."""
+
+    node: int
+    t: float
+    inc: Increment
+    residual: Moments
+    theta_start: float  # compass heading at the start of the increment, ENU rad
+    x: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    P: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    window: AnchorWindow = AnchorWindow()
+    pre_xy: tuple[float, float] = (0.0, 0.0)
+    terms: ErrorTerms = ErrorTerms(0.0, 0.0, 0.0)
+    fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
+
+
+@dataclass(frozen=True)
+class FixOutcome:
+    """What happened to one answered query. accepted: fused; reason: "accepted", "yaw_gate", "stale",
+    "unknown_query", "no_results" or "nonfinite"; chosen: index of the winning crop; xy: the fix, ENU metres;
+    yaw_residual: rad; sigma_fwd/sigma_lat: metres; nis: normalised innovation squared; delay_s: arrival
+    minus capture time; weights: w of every crop."""
+
+    query_id: int
+    accepted: bool
+    reason: str
+    capture_t: float
+    arrival_t: float
+    chosen: int = -1
+    xy: np.ndarray | None = None
+    yaw_residual: float = 0.0
+    sigma_fwd: float = 0.0
+    sigma_lat: float = 0.0
+    nis: float = 0.0
+    weights: tuple[float, ...] = ()
+
+
+@dataclass
+class _Pending:
+    query: FixQuery
+    issued_t: float
+    x_at_capture: np.ndarray
+
+
+class Localiser:
+    """TACO paper mode. All times in autopilot seconds."""
+
+    def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
+                 speed: float = 0.0, record: bool = True) -> None:
+        self.p = params
+        self.frame_dt = 1.0 / params.frame_rate_hz
+        self.record = record
+        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.allow_reverse, max_dt_s=params.max_dt_s)
+        self.highpass = HighPass(params.accel_highpass_hz)
+        self._interval_residual = MomentAccumulator()
+        s_xy, s_th = params.initial_sigma_xy_m, params.initial_sigma_theta_rad
+        self.ukf = PlanarUkf(np.array([x, y, heading]), np.diag([s_xy**2, s_xy**2, s_th**2]),
+                             params.ukf_alpha, params.ukf_beta, params.ukf_kappa)
+        self.t = t0
+        self._next_tick = t0 + self.frame_dt
+        self._window = AnchorWindow()
+        self._terms = ErrorTerms(0.0, 0.0, 0.0)
+        self._last_fix_t = t0
+        self._query_id = 0
+        self._ready: FixQuery | None = None
+        self._pending: _Pending | None = None
+        self._history: deque[_Tick] = deque(maxlen=max(2, int(math.ceil(params.history_s * params.frame_rate_hz)) + 2))
+        self._nodes = 0
+        # Offline records (record=True): online track, smoother inputs, outcomes.
+        self.track: list[tuple[float, float, float, float, float, float, float]] = []  # t, x, y, th, Pxx, Pxy, Pyy
+        self._graph_x: list[np.ndarray] = [np.array([x, y, heading])]
+        self._graph_inc: list[tuple[float, float, float]] = []
+        self._graph_sigma: list[float] = []
+        self._graph_fixes: dict[int, FixNode] = {}
+        self.outcomes: list[FixOutcome] = []
+        self.queries: list[FixQuery] = []
+        self._record_track(t0)
+
+    # ------------------------------------------------------------------ IMU path
+    def add_imu(self, sample: ImuSample) -> None:
+        """Integrate one IMU sample (FRD specific force, gyro, NED attitude); at each frame boundary run the
+        UKF predict on the accumulated increment and evaluate the trigger."""
+        dt = self.pre.add(sample)
+        if dt <= 0.0:
+            return
+        self.t = sample.t
+        self._interval_residual.add(self.highpass.step(self.pre.accel_fwd, dt))
+        if self.t >= self._next_tick - 1e-6:
+            while self._next_tick <= self.t + 1e-6:
+                self._next_tick += self.frame_dt
+            self._frame()
+
+    def _frame(self) -> None:
+        theta_start = self.pre._theta0
+        inc = self.pre.take_increment()
+        tick = _Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
+        self._advance(tick, self.pre.x, self.pre.y)
+        self._nodes += 1
+        self._history.append(tick)
+        if self.record:
+            self._graph_x.append(tick.x.copy())
+            self._graph_inc.append((inc.d_fwd, inc.d_left, inc.d_theta))
+            s_f, s_l = process_sigmas(tick.terms.epsilon, self.p.sigma_fwd_min_m, self.p.sigma_fwd_k,
+                                      self.p.sigma_lat_min_m, self.p.sigma_lat_k)
+            self._graph_sigma.append(0.5 * (s_f + s_l))
+            self._record_track(self.t)
+        self._maybe_trigger()
+
+    def _advance(self, tick: _Tick, pre_x: float, pre_y: float) -> None:
+        """Predict + compass update for one frame, starting from the current UKF state and anchor window."""
+        inc = tick.inc
+        self._window = self._window.extend(inc.dt, inc.distance, tick.residual)
+        d_div = math.hypot(self.ukf.x[0] - pre_x, self.ukf.x[1] - pre_y)
+        p = self.p
+        terms = error_terms(self._window, d_div, p.gyro_arw, p.error_cross_k, p.error_along_k, p.error_divergence_k)
+        s_f, s_l = process_sigmas(terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
+        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
+        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
+        self.ukf.update_heading(inc.theta_end, p.compass_sigma_rad)
+        if tick.fix is not None:
+            self.ukf.update_position(*tick.fix)
+        self._terms = terms
+        tick.terms, tick.window, tick.pre_xy = terms, self._window, (pre_x, pre_y)
+        tick.x, tick.P = self.ukf.get_state()
+
+    # ------------------------------------------------------------------ trigger and search
+    def _maybe_trigger(self) -> None:
+        if self._pending is not None:
+            if self.t - self._pending.issued_t < self.p.query_timeout_s:
+                return
+            self._pending = None  # unanswered: drop it so the pipeline can ask again
+        if self._ready is not None:
+            return
+        eps = self._terms.epsilon
+        reason = trigger_reason(eps, self.t - self._last_fix_t, self.p.trigger_epsilon_m, self.p.trigger_time_s)
+        if reason is None:
+            return
+        p = self.p
+        theta = float(self.pre.theta)
+        bias = forward_bias(eps, p.forward_bias_k, p.forward_bias_cap_m) if p.forward_bias else 0.0
+        offsets = cross_offsets(cross_spacing(eps, p.search_cross_k, p.cross_cap_m), p.multi_crop)
+        centre, crops = search_centres(self.ukf.x[:2], theta, bias, offsets)
+        self._query_id += 1
+        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, eps)
+        self._ready_reason = reason
+
+    def poll_query(self) -> FixQuery | None:
+        """The query the trigger produced, once (None when there is none). At most one is in flight."""
+        q, self._ready = self._ready, None
+        if q is not None:
+            self._pending = _Pending(q, self.t, self.ukf.x.copy())
+            if self.record:
+                self.queries.append(q)
+        return q
+
+    def cancel_query(self, query_id: int) -> None:
+        """Give up on an in-flight query (matcher failed); the time counter is not reset."""
+        if self._pending is not None and self._pending.query.query_id == query_id:
+            self._pending = None
+
+    # ------------------------------------------------------------------ fixes
+    def add_fix(self, query_id: int, results: Sequence[MatchResult]) -> FixOutcome:
+        """Hand back the matcher's results for a query (same order as its crop centres). The fix is applied at
+        its capture time (rewind, update, replay) unless params.apply_on_arrival."""
+        pending = self._pending
+        now = self.t
+        if pending is None or pending.query.query_id != query_id:
+            return self._log(FixOutcome(query_id, False, "unknown_query", float("nan"), now))
+        self._pending = None
+        q = pending.query
+        if not results:
+            return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, now))
+        weights = tuple(float(r.w) for r in results)
+        k = best_candidate(results)
+        best = results[k]
+        xy = fix_position(q.crop_centres[k], q.heading, best.t)
+        psi = yaw_residual(best.R)
+        if not (np.all(np.isfinite(xy)) and math.isfinite(psi) and math.isfinite(best.w) and best.w > 0):
+            return self._log(FixOutcome(query_id, False, "nonfinite", q.capture_t, now, k, weights=weights))
+        naive = self.p.apply_on_arrival
+        self._last_fix_t = max(self._last_fix_t, now if naive else q.capture_t)
+        if self.p.yaw_gate and not passes_yaw_gate(best.R, self.p.yaw_residual_max_rad):
+            return self._log(FixOutcome(query_id, False, "yaw_gate", q.capture_t, now, k, xy, psi, weights=weights))
+        s_f, s_l = fix_sigmas(best.w, self.p.fix_fwd_num, self.p.fix_fwd_min_m, self.p.fix_fwd_max_m,
+                              self.p.fix_lat_num, self.p.fix_lat_min_m, self.p.fix_lat_max_m, self.p.anisotropic)
+        if naive:
+            tick = self._history[-1] if self._history else None
+            nis = self._apply_now(xy, s_f, s_l, tick)
+        else:
+            tick = next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
+            if tick is None:
+                return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
+            nis = self._apply_at(tick, xy, s_f, s_l)
+        if self.record and tick is not None:
+            self._graph_fixes[tick.node] = FixNode(tick.node, xy.copy(), s_f, s_l)
+        return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+
+    def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: _Tick | None) -> float:
+        R = fix_covariance(float(self.ukf.x[2]), s_f, s_l)
+        nis = self.ukf.update_position(xy, R)
+        if tick is not None:
+            tick.fix = (xy.copy(), R)
+            tick.x, tick.P = self.ukf.get_state()
+        self._reset_anchor(self.t)
+        self.pre.reset_position(float(self.ukf.x[0]) + self._partial()[0], float(self.ukf.x[1]) + self._partial()[1])
+        if self.record and tick is not None:
+            self._graph_x[tick.node] = tick.x.copy()
+        return nis
+
+    def _apply_at(self, tick: _Tick, xy: np.ndarray, s_f: float, s_l: float) -> float:
+        """Rewind to `tick`, update there, reset the anchor there, replay the later frames."""
+        self.ukf.set_state(tick.x, tick.P)
+        R = fix_covariance(float(tick.x[2]), s_f, s_l)
+        nis = self.ukf.update_position(xy, R)
+        tick.fix = (xy.copy(), R)
+        tick.x, tick.P = self.ukf.get_state()
+        self._window = AnchorWindow()
+        pre_x, pre_y = float(tick.x[0]), float(tick.x[1])
+        tick.window, tick.pre_xy = self._window, (pre_x, pre_y)
+        later = [h for h in self._history if h.t > tick.t]
+        for h in later:
+            c, s = math.cos(h.theta_start), math.sin(h.theta_start)
+            pre_x += c * h.inc.d_fwd - s * h.inc.d_left
+            pre_y += s * h.inc.d_fwd + c * h.inc.d_left
+            self._advance(h, pre_x, pre_y)
+        if not later:
+            self._terms = ErrorTerms(0.0, 0.0, 0.0)
+        dx, dy = self._partial()
+        self.pre.reset_position(pre_x + dx, pre_y + dy)
+        if self.record:
+            for h in [tick, *later]:
+                self._graph_x[h.node] = h.x.copy()
+        return nis
+
+    def _partial(self) -> tuple[float, float]:
+        """Displacement (ENU metres) integrated since the last frame boundary."""
+        return self.pre._dx, self.pre._dy
+
+    def _reset_anchor(self, t: float) -> None:
+        self._window = AnchorWindow()
+        self._terms = ErrorTerms(0.0, 0.0, 0.0)
+
+    def _log(self, outcome: FixOutcome) -> FixOutcome:
+        if self.record:
+            self.outcomes.append(outcome)
+        return outcome
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> Estimate:
+        """The current estimate: UKF position at the last frame plus the displacement integrated since."""
+        dx, dy = self._partial()
+        x = self.ukf.x
+        return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), float(self.pre.theta), float(self.pre.speed),
+                        self.ukf.P[:2, :2].copy(), self._terms.epsilon, self.t - self._last_fix_t)
+
+    @property
+    def query_in_flight(self) -> bool:
+        return self._pending is not None
+
+    def _record_track(self, t: float) -> None:
+        x, P = self.ukf.x, self.ukf.P
+        self.track.append((t, float(x[0]), float(x[1]), float(x[2]), float(P[0, 0]), float(P[0, 1]), float(P[1, 1])))
+
+    def smoothed(self) -> SmoothResult:
+        """Run the Pose2 smoother over everything recorded (offline; requires record=True)."""
+        if not self.record:
+            raise RuntimeError("smoothing needs a Localiser built with record=True")
+        inc = np.array(self._graph_inc).reshape(-1, 3)
+        fixes = [self._graph_fixes[k] for k in sorted(self._graph_fixes)]
+        return smooth(np.array(self._graph_x), inc, np.array(self._graph_sigma), fixes, self.p.smoother)

@@ -1,0 +1,140 @@
+"""IMU preintegration (paper Sec. III-B): body-frame motion between filter frames from autopilot IMU samples.
+
+Input per sample: body FRD specific force (m/s^2, gravity included) and attitude (roll, pitch, yaw NED, rad).
+The specific force is rotated into the level (yaw-only) frame with roll and pitch; its forward component is
+the gravity-compensated forward acceleration (gravity is vertical, so it has no level-forward component).
+Speed integrates that acceleration; heading comes from the compass (attitude yaw, theta = pi/2 - psi in ENU).
+
+Between two filter frames the preintegrator accumulates the planar increment (forward, left) metres in the
+body frame at the start of the interval and the heading change dtheta (CCW rad): exact for arcs because each
+sample's displacement is rotated by the heading change since the interval start.
+
+It also keeps a dead-reckoned position (ENU metres, the "corrected preintegrator" of Sec. III-B) that is
+reset to the UKF position on an accepted fix (position only; heading and speed preserved, Sec. III-F).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from taco_mav.core.types import ImuSample
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to (-pi, pi], radians."""
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+def enu_heading(yaw_ned: float) -> float:
+    """ENU heading theta (0 = east, CCW) from a NED yaw psi (0 = north, CW): theta = pi/2 - psi."""
+    return wrap_angle(math.pi / 2.0 - yaw_ned)
+
+
+def level_forward_accel(accel_frd: tuple[float, float, float], roll: float, pitch: float) -> float:
+    """Forward acceleration in the level frame, m/s^2, from FRD specific force and NED roll/pitch (rad).
+
+    f_level = Ry(pitch) Rx(roll) f_body; its x component is the along-heading acceleration (gravity lies on
+    the level frame's z axis and drops out).
+    """
+    fx, fy, fz = accel_frd
+    sp, cp = math.sin(pitch), math.cos(pitch)
+    sr, cr = math.sin(roll), math.cos(roll)
+    return cp * fx + sp * sr * fy + sp * cr * fz
+
+
+@dataclass(frozen=True, slots=True)
+class Increment:
+    """Body-frame motion over one filter frame. d_fwd, d_left: metres in the body frame at the frame start;
+    d_theta: heading change, rad CCW; dt: seconds; distance: path length, metres; t_end: end time, s;
+    theta_end: compass heading at the end, ENU rad; speed_end: m/s."""
+
+    d_fwd: float
+    d_left: float
+    d_theta: float
+    dt: float
+    distance: float
+    t_end: float
+    theta_end: float
+    speed_end: float
+
+    @property
+    def chord(self) -> float:
+        """Straight-line length of the increment, metres."""
+        return math.hypot(self.d_fwd, self.d_left)
+
+
+class Preintegrator:
+    """Integrates IMU samples into speed, heading and per-frame body increments.
+
+    speed: forward speed, m/s (clamped at 0 unless allow_reverse). theta: compass heading, ENU rad.
+    x, y: dead-reckoned position, ENU metres. accel_fwd: last gravity-compensated forward accel, m/s^2.
+    """
+
+    def __init__(self, t0: float, x: float = 0.0, y: float = 0.0, theta: float = 0.0, speed: float = 0.0,
+                 *, allow_reverse: bool = False, max_dt_s: float = 0.5) -> None:
+        self.t = t0
+        self.x, self.y = x, y
+        self.theta = theta
+        self.speed = speed
+        self.allow_reverse = allow_reverse
+        self.max_dt_s = max_dt_s
+        self.accel_fwd = 0.0
+        self._reset_interval(theta)
+
+    def _reset_interval(self, theta: float) -> None:
+        self._theta0 = theta
+        self._c0, self._s0 = math.cos(theta), math.sin(theta)
+        self._dx = self._dy = 0.0
+        self._dist = 0.0
+        self._dt = 0.0
+
+    def add(self, sample: ImuSample) -> float:
+        """Integrate one sample; returns the step dt actually integrated, s (0 for stale or repeated time)."""
+        dt = sample.t - self.t
+        if dt <= 0.0:
+            return 0.0
+        self.t = sample.t
+        dt = min(dt, self.max_dt_s)
+        a = level_forward_accel(sample.accel_frd, sample.roll, sample.pitch)
+        theta = enu_heading(sample.yaw)
+        v0 = self.speed
+        v1 = v0 + a * dt
+        if not self.allow_reverse and v1 < 0.0:
+            v1 = 0.0
+        step = 0.5 * (v0 + v1) * dt  # trapezoid on speed
+        # Displacement along the mean heading of the step (handles the wrap at +-pi).
+        mid = self.theta + 0.5 * wrap_angle(theta - self.theta)
+        cm, sm = math.cos(mid), math.sin(mid)
+        ex, ey = step * cm, step * sm
+        self.x += ex
+        self.y += ey
+        self._dx += ex
+        self._dy += ey
+        self._dist += abs(step)
+        self._dt += dt
+        self.speed = v1
+        self.theta = theta
+        self.accel_fwd = a
+        return dt
+
+    def take_increment(self) -> Increment:
+        """Close the current frame interval: the increment since the last call, in the start-of-interval body
+        frame; starts a new interval."""
+        c, s = self._c0, self._s0
+        inc = Increment(
+            d_fwd=c * self._dx + s * self._dy,
+            d_left=-s * self._dx + c * self._dy,
+            d_theta=wrap_angle(self.theta - self._theta0),
+            dt=self._dt,
+            distance=self._dist,
+            t_end=self.t,
+            theta_end=self.theta,
+            speed_end=self.speed,
+        )
+        self._reset_interval(self.theta)
+        return inc
+
+    def reset_position(self, x: float, y: float) -> None:
+        """Position-only anchor reset on an accepted fix (Sec. III-F): heading and speed are preserved."""
+        self.x, self.y = x, y

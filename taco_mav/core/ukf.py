@@ -1,0 +1,160 @@
+"""3-state UKF on (x, y, theta) with anisotropic CVGL noise (paper Sec. III-F).
+
+State: x, y ENU metres relative to the origin; theta ENU heading, radians. Predict propagates van der Merwe
+sigma points (filterpy) through the body-frame rigid-motion model with a preintegrated increment
+(forward, left, dtheta). Updates are linear (a position fix; a compass heading), so they are done as exact
+Kalman updates in Joseph form rather than with filterpy's unscented update: with alpha = 1e-3 the centre
+sigma point's weight is about -1e6, and once P is large (minutes without a fix) the unscented update's
+cancellation loses positive definiteness. After every step P is symmetrised and, if needed, repaired to the
+nearest positive-definite matrix (eigenvalue floor), so Cholesky in the next predict never fails.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+_EIG_FLOOR = 1e-9
+
+
+def _wrap(a: float) -> float:
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d_theta: float = 0.0) -> np.ndarray:
+    """Body-frame rigid motion (Sec. III-F): rotate (forward, left) by theta, add dtheta (no wrap here)."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    return np.array([x[0] + c * d_fwd - s * d_left, x[1] + s * d_fwd + c * d_left, x[2] + d_theta])
+
+
+def _residual_x(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = a - b
+    d[2] = _wrap(d[2])
+    return d
+
+
+def _hx(x: np.ndarray) -> np.ndarray:  # pragma: no cover - filterpy requires one; updates are linear here
+    return x[:2]
+
+
+def nearest_pd(P: np.ndarray, floor: float = _EIG_FLOOR) -> np.ndarray:
+    """Symmetrise P and lift any eigenvalue below `floor` to it (the nearest PD matrix in Frobenius norm)."""
+    S = 0.5 * (P + P.T)
+    w, V = np.linalg.eigh(S)
+    if w.min() >= floor:
+        return S
+    w = np.maximum(w, floor)
+    return (V * w) @ V.T
+
+
+def joseph_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, innovation: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Exact linear Kalman update in Joseph form. Returns (x, P, NIS) where NIS = y^T S^-1 y."""
+    S = H @ P @ H.T + R
+    S = 0.5 * (S + S.T)
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
+    x_new = x + K @ innovation
+    I_KH = np.eye(len(x)) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    nis = float(innovation @ np.linalg.solve(S, innovation))
+    return x_new, nearest_pd(P_new), nis
+
+
+_H_POS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_H_THETA = np.array([[0.0, 0.0, 1.0]])
+
+
+class PlanarUkf:
+    """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3)."""
+
+    def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> None:
+        points = MerweScaledSigmaPoints(3, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
+        self._ukf = UnscentedKalmanFilter(dim_x=3, dim_z=2, dt=0.1, hx=_hx, fx=_motion, points=points,
+                                          residual_x=_residual_x)
+        self._ukf.x = np.asarray(x0, dtype=float).copy()
+        self._ukf.P = nearest_pd(np.asarray(P0, dtype=float))
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._ukf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._ukf.P
+
+    def get_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """A copy of (x, P) for the delayed-fix history."""
+        return self._ukf.x.copy(), self._ukf.P.copy()
+
+    def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
+        self._ukf.x = np.asarray(x, dtype=float).copy()
+        self._ukf.P = np.asarray(P, dtype=float).copy()
+
+    def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray) -> None:
+        """Propagate by one body-frame increment (metres, metres, rad) with process noise Q (3x3)."""
+        ukf = self._ukf
+        ukf.Q = Q
+        try:
+            ukf.predict(d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+        except np.linalg.LinAlgError:
+            ukf.P = nearest_pd(ukf.P, floor=1e-6)
+            ukf.predict(d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+        ukf.x[2] = _wrap(ukf.x[2])
+        ukf.P = nearest_pd(ukf.P)
+
+    def update_position(self, z: np.ndarray, R: np.ndarray) -> float:
+        """Position-only fix z (ENU metres, (2,)) with covariance R (2x2). Returns the NIS."""
+        ukf = self._ukf
+        innovation = np.asarray(z, dtype=float) - ukf.x[:2]
+        ukf.x, ukf.P, nis = joseph_update(ukf.x, ukf.P, _H_POS, innovation, R)
+        ukf.x[2] = _wrap(ukf.x[2])
+        return nis
+
+    def position_nis(self, z: np.ndarray, R: np.ndarray) -> float:
+        """Normalised innovation squared of a position fix, without applying it."""
+        innovation = np.asarray(z, dtype=float) - self._ukf.x[:2]
+        S = _H_POS @ self._ukf.P @ _H_POS.T + R
+        return float(innovation @ np.linalg.solve(S, innovation))
+
+    def update_heading(self, theta: float, sigma: float) -> None:
+        """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi])."""
+        ukf = self._ukf
+        innovation = np.array([_wrap(theta - ukf.x[2])])
+        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, _H_THETA, innovation, np.array([[sigma * sigma]]))
+        ukf.x[2] = _wrap(ukf.x[2])
+
+
+def process_sigmas(epsilon: float, sigma_fwd_min: float = 1.0, sigma_fwd_k: float = 2.0, sigma_lat_min: float = 1.5,
+                   sigma_lat_k: float = 0.3) -> tuple[float, float]:
+    """Per-frame process sigmas, metres: sigma_fwd = max(1.0, 2.0 eps), sigma_lat = max(1.5, 0.3 eps)."""
+    return max(sigma_fwd_min, sigma_fwd_k * epsilon), max(sigma_lat_min, sigma_lat_k * epsilon)
+
+
+def process_noise(theta: float, sigma_fwd: float, sigma_lat: float, sigma_theta: float, dt: float, frame_dt: float) -> np.ndarray:
+    """Q (3x3) for one predict: diag(sigma_fwd^2, sigma_lat^2, sigma_theta^2) per camera-rate frame
+    (Sec. III-F) with the position block taken in the body frame (forward/lateral, as the names say) and
+    rotated into ENU by theta, scaled by dt / frame_dt so the noise per second is the same at any rate."""
+    scale = dt / frame_dt
+    Q = np.zeros((3, 3))
+    Q[:2, :2] = fix_covariance(theta, sigma_fwd, sigma_lat) * scale
+    Q[2, 2] = sigma_theta * sigma_theta * scale
+    return Q
+
+
+def fix_sigmas(w: float, fwd_num: float = 1.5, fwd_min: float = 0.5, fwd_max: float = 8.0, lat_num: float = 3.0,
+               lat_min: float = 1.0, lat_max: float = 12.0, anisotropic: bool = True) -> tuple[float, float]:
+    """Per-fix body-frame sigmas, metres: clip(1.5/w, 0.5, 8), clip(3/w, 1, 12). Isotropic: both = mean."""
+    w = max(float(w), 1e-6)
+    s_fwd = min(max(fwd_num / w, fwd_min), fwd_max)
+    s_lat = min(max(lat_num / w, lat_min), lat_max)
+    if not anisotropic:
+        s_fwd = s_lat = 0.5 * (s_fwd + s_lat)
+    return s_fwd, s_lat
+
+
+def fix_covariance(theta: float, sigma_fwd: float, sigma_lat: float) -> np.ndarray:
+    """R_meas = Rot(theta) diag(sigma_fwd^2, sigma_lat^2) Rot(theta)^T, m^2 (ENU)."""
+    c, s = math.cos(theta), math.sin(theta)
+    Rot = np.array([[c, -s], [s, c]])
+    return Rot @ np.diag([sigma_fwd * sigma_fwd, sigma_lat * sigma_lat]) @ Rot.T
