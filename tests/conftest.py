@@ -1,0 +1,17 @@
+"""Shared pytest fixtures. Real KITTI data lives beside the repository in ../shared/data (the CI layout)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw"
+
+
+@pytest.fixture(scope="session")
+def kitti_root() -> Path:
+    """The KITTI raw root (`<root>/<date>/<date>_drive_<nnnn>_sync/oxts`); skips when it is absent."""
+    if not KITTI_ROOT.is_dir():
+        pytest.skip(f"KITTI raw data not found at {KITTI_ROOT} (expected ../shared/data/kitti_raw beside the repo)")
+    return KITTI_ROOT
