@@ -14,7 +14,7 @@ import math
 from typing import overload
 
 import numpy as np
-from pyproj import Transformer
+from pyproj import Proj, Transformer
 
 from taco_mav.errors import ConfigError, DataError
 
@@ -25,6 +25,7 @@ __all__ = [
     "enu_from_ned_yaw",
     "gps_leap_seconds_at",
     "gps_week_ms",
+    "grid_convergence",
     "ned_from_enu_yaw",
     "unix_from_gps_week_ms",
     "utm_epsg_for",
@@ -99,6 +100,11 @@ def _transformers(epsg: int) -> tuple[Transformer, Transformer]:
     return forward, inverse
 
 
+@functools.lru_cache(maxsize=32)
+def _proj(epsg: int) -> Proj:
+    return Proj(f"EPSG:{epsg}")
+
+
 def _out(x: np.ndarray) -> float | np.ndarray:
     return float(x) if np.ndim(x) == 0 else x
 
@@ -145,8 +151,23 @@ class UtmProjector:
             raise DataError(f"EPSG:{self.epsg}: some easting/northing could not be unprojected (non-finite result)")
         return _out(lat), _out(lon)
 
+    def grid_convergence(self, lat: float | np.ndarray, lon: float | np.ndarray) -> float | np.ndarray:
+        """Meridian convergence gamma, radians, at WGS84 (lat, lon) degrees: the UTM grid heading is the true
+        ENU heading plus gamma (theta_grid = theta_true + gamma). Negative west of the zone's central meridian
+        in the northern hemisphere (about -0.46 deg at KITTI's Karlsruhe)."""
+        factors = _proj(self.epsg).get_factors(np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64))
+        return _out(np.radians(np.asarray(factors.meridian_convergence, dtype=np.float64)))
+
     def __repr__(self) -> str:
         return f"UtmProjector(epsg={self.epsg})"
+
+
+def grid_convergence(lat: float | np.ndarray, lon: float | np.ndarray, epsg: int | None = None) -> float | np.ndarray:
+    """Meridian convergence, radians, of UTM zone `epsg` (default: the zone of the first point) at (lat, lon)
+    degrees; add it to a true ENU heading (OXTS yaw, a compass) to get the heading on the UTM grid."""
+    if epsg is None:
+        epsg = utm_epsg_for(float(np.ravel(lat)[0]), float(np.ravel(lon)[0]))
+    return UtmProjector(epsg).grid_convergence(lat, lon)
 
 
 # ------------------------------------------------------------------------------------------------ time

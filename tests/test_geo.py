@@ -15,6 +15,7 @@ from taco_mav.geo import (
     enu_from_ned_yaw,
     gps_leap_seconds_at,
     gps_week_ms,
+    grid_convergence,
     ned_from_enu_yaw,
     unix_from_gps_week_ms,
     utm_epsg_for,
@@ -117,6 +118,16 @@ def test_projector_scalars_and_properties() -> None:
 def test_projector_refuses_non_utm_epsg(epsg: int) -> None:
     with pytest.raises(ConfigError, match=f"EPSG:{epsg}"):
         UtmProjector(epsg)
+
+
+def test_grid_convergence_matches_spherical_formula() -> None:
+    # gamma ~ atan(tan(lon - lon0) sin(lat)) to ~1e-5 rad within a zone; the grid heading is true heading + gamma.
+    for lat, lon, epsg, lon0 in [(49.0495, 8.3966, 32632, 9.0), (49.0, 11.5, 32632, 9.0), (-35.36, 149.17, 32755, 147.0)]:
+        expected = math.atan(math.tan(math.radians(lon - lon0)) * math.sin(math.radians(lat)))
+        assert grid_convergence(lat, lon, epsg) == pytest.approx(expected, abs=2e-5)
+    assert math.degrees(grid_convergence(49.04951961077, 8.3965961639946)) == pytest.approx(-0.4557, abs=1e-3)
+    gammas = UtmProjector(32632).grid_convergence(np.array([49.0, 49.0]), np.array([8.0, 10.0]))
+    assert gammas.shape == (2,) and gammas[0] < 0 < gammas[1] and gammas[0] == pytest.approx(-gammas[1], rel=1e-3)
 
 
 def test_wrap_angle_range_and_shape() -> None:

@@ -1,0 +1,196 @@
+"""Strict readers for KITTI raw files: timestamps.txt, oxts/data/*.txt, calib_cam_to_cam.txt, world.json.
+
+Each reader refuses what it cannot read with a DataError naming the file and, where there is one, the
+1-based line number; nothing is silently truncated or skipped. Units are KITTI's own (see `OXTS_FIELDS`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from taco_mav.errors import DataError
+
+log = logging.getLogger(__name__)
+
+# The 30 OXTS fields per line, in order (oxts/dataformat.txt). Angles rad, rates rad/s, accelerations m/s^2
+# (ax..az: body FLU specific force, gravity included), velocities m/s, lat/lon degrees, alt metres.
+OXTS_FIELDS: tuple[str, ...] = (
+    "lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az",
+    "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy",
+    "navstat", "numsats", "posmode", "velmode", "orimode",
+)
+OXTS: dict[str, int] = {name: i for i, name in enumerate(OXTS_FIELDS)}
+_N_OXTS = len(OXTS_FIELDS)
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """KITTI `YYYY-MM-DD HH:MM:SS.fffffffff` lines -> (N,) int64 nanoseconds since the unix epoch.
+
+    KITTI does not state a time zone; the strings are read as UTC. Trailing blank lines are allowed, blank
+    lines in between are not. Times must not go backwards (repeats are allowed and logged).
+    """
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DataError(f"{path}: timestamps file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read ({exc})") from None
+    lines = text.rstrip().splitlines()
+    if not lines or not lines[0].strip():
+        raise DataError(f"{path}: no timestamps")
+    stripped = [line.strip() for line in lines]
+    try:
+        ns = np.array(stripped, dtype="datetime64[ns]").astype(np.int64)
+        bad = np.flatnonzero(ns == np.iinfo(np.int64).min)  # NaT
+    except ValueError:
+        bad = np.array([i for i, s in enumerate(stripped) if not _parses_as_time(s)])
+        ns = np.zeros(0, dtype=np.int64)
+    if len(bad):
+        i = int(bad[0])
+        raise DataError(f"{path}, line {i + 1}: not a KITTI timestamp (YYYY-MM-DD HH:MM:SS.fffffffff): {stripped[i]!r}")
+    steps = np.diff(ns)
+    back = np.flatnonzero(steps < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise DataError(f"{path}, line {i + 1}: time goes backwards ({stripped[i - 1]} -> {stripped[i]})")
+    if np.any(steps == 0):
+        log.warning("%s: %d repeated timestamps", path, int(np.sum(steps == 0)))
+    return ns
+
+
+def _parses_as_time(s: str) -> bool:
+    if len(s) < 19 or s[4] != "-" or s[7] != "-":
+        return False
+    try:
+        return not np.isnat(np.datetime64(s, "ns"))
+    except ValueError:
+        return False
+
+
+def read_oxts(data_dir: Path, indices: Sequence[int]) -> np.ndarray:
+    """OXTS packets `data_dir/<index:010d>.txt` for `indices` -> (len(indices), 30) float64, `OXTS_FIELDS`
+    order. Each file must hold exactly one line of 30 numbers; the navigation fields must be finite."""
+    chunks: list[list[bytes]] = []
+    for index in indices:
+        path = data_dir / f"{index:010d}.txt"
+        try:
+            with open(path, "rb") as fh:
+                content = fh.read()
+        except FileNotFoundError:
+            raise DataError(f"{path}: OXTS packet file not found") from None
+        except OSError as exc:
+            raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+        parts = content.split()
+        if len(parts) != _N_OXTS or content.strip().count(b"\n"):
+            _raise_bad_shape(path, content)
+        chunks.append(parts)
+    try:
+        values = np.array(chunks, dtype=np.float64).reshape(len(chunks), _N_OXTS)
+    except ValueError:
+        for index, parts in zip(indices, chunks):
+            for k, word in enumerate(parts):
+                try:
+                    float(word)
+                except ValueError:
+                    raise DataError(f"{data_dir / f'{index:010d}.txt'}, line 1: field {k + 1} ({OXTS_FIELDS[k]}) "
+                                    f"is not a number: {word.decode(errors='replace')!r}") from None
+        raise  # pragma: no cover - numpy refused something float() accepts
+    nav = values[:, : OXTS["wu"] + 1]
+    bad_rows = np.flatnonzero(~np.all(np.isfinite(nav), axis=1))
+    if len(bad_rows):
+        row = int(bad_rows[0])
+        raise DataError(f"{data_dir / f'{indices[row]:010d}.txt'}, line 1: non-finite navigation value")
+    return values
+
+
+def _raise_bad_shape(path: Path, content: bytes) -> None:
+    lines = content.decode(errors="replace").splitlines()
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        n = len(line.split())
+        if n != _N_OXTS:
+            raise DataError(f"{path}, line {number}: expected {_N_OXTS} OXTS fields, found {n}")
+        if number > 1 or any(other.strip() for other in lines[number:]):
+            raise DataError(f"{path}, line {number + 1}: expected one OXTS line per file, found more")
+    raise DataError(f"{path}, line 1: empty OXTS packet (expected {_N_OXTS} fields)")
+
+
+def count_files(folder: Path, suffix: str) -> int:
+    """Number of plain files named `*<suffix>` in `folder` (DataError when the folder is missing)."""
+    try:
+        return sum(1 for e in os.scandir(folder) if e.name.endswith(suffix) and e.is_file())
+    except FileNotFoundError:
+        raise DataError(f"{folder}: folder not found") from None
+
+
+def read_calib(path: Path) -> dict[str, str]:
+    """A KITTI calibration file (`KEY: values` per line) -> {key: raw value string}."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    out: dict[str, str] = {}
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        key, sep, value = line.partition(":")
+        if not sep or not key.strip():
+            raise DataError(f"{path}, line {number}: expected 'KEY: values', got {line.strip()[:60]!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def calib_numbers(calib: dict[str, str], key: str, count: int, path: Path) -> np.ndarray:
+    """The `count` numbers of calibration entry `key` as float64 (DataError naming the file and key)."""
+    if key not in calib:
+        raise DataError(f"{path}: key {key} missing")
+    try:
+        values = np.array([float(v) for v in calib[key].split()])
+    except ValueError:
+        raise DataError(f"{path}: key {key}: not all values are numbers") from None
+    if len(values) != count or not np.all(np.isfinite(values)):
+        raise DataError(f"{path}: key {key}: expected {count} finite numbers, found {len(values)}")
+    return values
+
+
+def _names_drive(value: Any, drive_name: str) -> bool:
+    tail = Path(str(value)).name
+    return tail.removesuffix("_sync") == drive_name.removesuffix("_sync")
+
+
+def find_world_mosaic(drive_dir: Path, drive_name: str) -> Path | None:
+    """The satellite GeoTIFF of a synthetic world holding this drive, or None.
+
+    Looks for `world.json` in the drive folder, its date folder, then the dataset root (nearest first). Its
+    `"mosaic"` is a path relative to the world.json's folder (absolute paths are taken as they are); an
+    optional `"drive"` (a drive name or a path to the drive folder) restricts it to that drive. Other keys are
+    ignored. A world.json that is not a JSON object, lacks "mosaic" or names a missing file is refused.
+    """
+    for folder in (drive_dir, drive_dir.parent, drive_dir.parent.parent):
+        world = folder / "world.json"
+        if not world.is_file():
+            continue
+        try:
+            data = json.loads(world.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise DataError(f"{world}: not readable JSON ({exc})") from None
+        if not isinstance(data, dict):
+            raise DataError(f"{world}: expected a JSON object at the top level")
+        if "drive" in data and not _names_drive(data["drive"], drive_name):
+            log.info("%s describes drive %r, not %s: no mosaic taken from it", world, data["drive"], drive_name)
+            continue
+        if not isinstance(data.get("mosaic"), str) or not data["mosaic"]:
+            raise DataError(f"{world}: key \"mosaic\" (a GeoTIFF path relative to this file) missing or not a string")
+        mosaic = (folder / data["mosaic"]).resolve()
+        if not mosaic.is_file():
+            raise DataError(f"{world}: mosaic {data['mosaic']!r} not found (looked at {mosaic})")
+        log.debug("%s: mosaic %s from %s", drive_name, mosaic, world)
+        return mosaic
+    return None
