@@ -202,6 +202,13 @@ class EmulatorConfig:
     symmetric_lock_rate: float = field(default=0.03, metadata=_rng(0.0, 1.0))
     silent_outlier_rate: float = field(default=0.01, metadata=_rng(0.0, 1.0))
     seed: int = 0
+    # Not in the paper (emulator shape, see docs/matchers.md): error direction is drawn with lateral/forward
+    # spread 2:1 (Sec. III-F's sigma ratio); w = clip(exp(-err / weight_scale_m) + N(0, weight_noise)).
+    lateral_to_forward: float = field(default=2.0, metadata=_rng(0.0, open_lo=True))
+    weight_scale_m: float = field(default=2.0, metadata=_rng(0.0, open_lo=True))
+    weight_noise: float = field(default=0.05, metadata=_rng(0.0))
+    outlier_min_error_m: float = field(default=5.0, metadata=_rng(0.0))  # silent outliers: U(this, capture)
+    miss_weight_max: float = field(default=0.15, metadata=_rng(0.0, 1.0, open_lo=True))  # outside capture radius
 
 
 @dataclass(frozen=True)
