@@ -50,17 +50,18 @@ def _not_yet(issue: int) -> Callable[[argparse.Namespace], int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    common.add_argument("-q", "--quiet", action="store_true", help="warnings only, no progress bars")
     parser = argparse.ArgumentParser(prog="taco-mav", description="GNSS substitute for ground robots (TACO over MAVLink)")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    parser.add_argument("-q", "--quiet", action="store_true", help="warnings only, no progress bars")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("bench", help="speed/accuracy benchmarks to JSON")
+    p = sub.add_parser("bench", parents=[common], help="speed/accuracy benchmarks to JSON")
     p.add_argument("--out", required=True, help="output JSON file")
     p.add_argument("--only", help="comma-separated section names (e.g. fusion)")
     p.set_defaults(func=_cmd_bench)
 
-    p = sub.add_parser("world", help="generate a synthetic world + drive in KITTI raw layout")
+    p = sub.add_parser("world", parents=[common], help="generate a synthetic world + drive in KITTI raw layout")
     p.add_argument("--out", required=True)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--length-km", type=float, default=1.0)
@@ -70,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_world)
 
     for name, issue in (("eval", 5), ("run", 6), ("sim", 6), ("demo", 6)):
-        p = sub.add_parser(name, help=f"(issue {issue})")
+        p = sub.add_parser(name, parents=[common], help=f"(issue {issue})")
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_not_yet(issue))
     return parser

@@ -186,6 +186,14 @@ class ClassicalMatcherConfig:
     rotation_range_rad: float = field(default=math.radians(10.0), metadata=_rng(0.0, math.pi))
     rotation_step_rad: float = field(default=math.radians(2.0), metadata=_rng(0.0, math.pi, open_lo=True))
     psr_at_half_weight: float = field(default=8.0, metadata=_rng(0.0, open_lo=True))
+    # Vehicle positions searched: within this many metres of the crop centre along each crop axis.
+    search_radius_m: float = field(default=30.0, metadata=_rng(1.0))
+    # Shifts where the template overlaps the valid crop by less than this share of its mask are not scored.
+    min_overlap: float = field(default=0.6, metadata=_rng(0.0, 1.0, open_lo=True))
+    # Local contrast normalisation (both images): Gaussian sigma of the local mean/std, metres.
+    lcn_sigma_m: float = field(default=2.0, metadata=_rng(0.0, open_lo=True))
+    # Sidelobe for the peak-to-sidelobe ratio: the score map outside this radius around the peak, metres.
+    psr_exclusion_m: float = field(default=2.0, metadata=_rng(0.0))
 
 
 @dataclass(frozen=True)
@@ -219,6 +227,9 @@ class Fg2Config:
     checkpoint: str = ""
     device: str = "auto"  # "auto", "cpu" or "cuda"
     fp16: bool = True  # autocast on CUDA (Sec. IV-D)
+    # "module:function" building the model from (checkout, checkpoint, device); imported with the checkout on
+    # sys.path. The default shim checks the published FG2 layout (see docs/matchers.md).
+    entry: str = "taco_mav.cvgl.fg2_shim:build_model"
 
 
 @dataclass(frozen=True)

@@ -76,10 +76,12 @@ class OracleMatcher:
     def __init__(self, drive: SimDrive, sigma_fwd: float = 0.5, sigma_lat: float = 1.0, w: float = 1.0,
                  capture_radius: float = 20.0, seed: int = 0) -> None:
         self.drive, self.sf, self.sl, self.w, self.r = drive, sigma_fwd, sigma_lat, w, capture_radius
+        self.seed = seed
         self.rng = np.random.default_rng(seed)
 
     def answer(self, q: FixQuery, psi_res: float = 0.0, bias_world: np.ndarray | None = None) -> list[MatchResult]:
         x, y, th = self.drive.pose_at(q.capture_t)
+        self.rng = np.random.default_rng([self.seed, int(round(q.capture_t * 1000))])  # same answer at any latency
         true = np.array([x, y]) + (bias_world if bias_world is not None else 0.0)
         noise_world = body_to_world(th, np.array([self.rng.normal(0, self.sf), self.rng.normal(0, self.sl)]))
         R = np.array([[math.cos(psi_res), -math.sin(psi_res)], [math.sin(psi_res), math.cos(psi_res)]])

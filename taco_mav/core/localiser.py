@@ -175,8 +175,7 @@ class Localiser:
         offsets = cross_offsets(cross_spacing(eps, p.search_cross_k, p.cross_cap_m), p.multi_crop)
         centre, crops = search_centres(self.ukf.x[:2], theta, bias, offsets)
         self._query_id += 1
-        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, eps)
-        self._ready_reason = reason
+        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, eps, reason.value)
 
     def poll_query(self) -> FixQuery | None:
         """The query the trigger produced, once (None when there is none). At most one is in flight."""

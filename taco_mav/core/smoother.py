@@ -68,7 +68,8 @@ def loop_closure_pairs(fixes: Sequence[FixNode], path_cum: np.ndarray, max_chord
             continue
         chord = float(np.linalg.norm(fb.xy - fa.xy))
         path = abs(float(path_cum[fb.node] - path_cum[fa.node]))
-        if chord <= 1e-9 or path / chord >= min_path_ratio:
+        # A stop (path ~ 0, chord ~ 0) gives a ratio ~ 0, not infinity: it must not close a loop.
+        if path / max(chord, 1e-6) >= min_path_ratio:
             pairs.append((a, b))
     return pairs
 

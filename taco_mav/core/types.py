@@ -45,10 +45,6 @@ class MatchResult:
     w: float
     elapsed_s: float = 0.0
 
-    @property
-    def yaw_residual(self) -> float:
-        """psi_res = atan2(R[1,0], R[0,0]), radians (paper Sec. III-E)."""
-        return float(np.arctan2(self.R[1, 0], self.R[0, 0]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,9 +53,11 @@ class FixQuery:
 
     capture_t: autopilot time of the frame to match, seconds. centre: forward-biased search centre, ENU metres
     (shape (2,)). heading: compass heading theta at capture, ENU radians (0 = east, CCW). offsets_body: the
-    five body-frame offsets (forward, left) metres, shape (5, 2), in order back, centre, forward, left, right
-    is NOT implied: use crop_centres for world positions. crop_centres: ENU metres, shape (K, 2).
-    epsilon: the IMU error envelope that sized the search, metres. query_id: monotonically increasing id.
+    body-frame offsets (forward, left) metres around the centre, shape (K, 2) (K = 5 in paper mode: back,
+    centre, forward, left, right; K = 1 for the single-crop ablation). crop_centres: the same in the world,
+    ENU metres relative to the origin, shape (K, 2) (add the origin's UTM easting/northing for map crops);
+    crop k is requested at crop_centres[k] with the query heading and its MatchResult goes back in the same
+    order. epsilon: the IMU error envelope that sized the search, metres. query_id: increasing id.
     """
 
     query_id: int
@@ -69,6 +67,7 @@ class FixQuery:
     offsets_body: np.ndarray
     crop_centres: np.ndarray
     epsilon: float
+    reason: str = "error"  # which branch of the dual trigger fired: "error" or "time"
 
 
 @dataclass(frozen=True, slots=True)

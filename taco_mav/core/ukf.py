@@ -39,12 +39,22 @@ def _hx(x: np.ndarray) -> np.ndarray:  # pragma: no cover - filterpy requires on
     return x[:2]
 
 
+def _leading_minors_positive(S: np.ndarray, floor: float) -> bool:
+    """Sylvester's criterion with a margin, for the 2x2/3x3 matrices here (cheaper than an eigendecomposition)."""
+    if S.shape == (3, 3):
+        (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+        m2 = a * d - b * b
+        m3 = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+        return a > floor and m2 > floor * a and m3 > floor * m2
+    return bool(np.linalg.eigvalsh(S).min() >= floor)
+
+
 def nearest_pd(P: np.ndarray, floor: float = _EIG_FLOOR) -> np.ndarray:
     """Symmetrise P and lift any eigenvalue below `floor` to it (the nearest PD matrix in Frobenius norm)."""
     S = 0.5 * (P + P.T)
-    w, V = np.linalg.eigh(S)
-    if w.min() >= floor:
+    if _leading_minors_positive(S, floor):
         return S
+    w, V = np.linalg.eigh(S)
     w = np.maximum(w, floor)
     return (V * w) @ V.T
 

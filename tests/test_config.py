@@ -1,0 +1,72 @@
+import dataclasses
+import math
+
+import pytest
+
+from taco_mav.config import (Estimator, Profile, load_profile, localiser_params, profile_from_dict,
+                             profile_to_dict, replace_in)
+from taco_mav.core.params import LocaliserParams
+from taco_mav.errors import ConfigError
+
+
+def test_defaults_are_the_papers_values():
+    p = Profile()
+    assert (p.trigger.epsilon_m, p.trigger.time_s) == (1.0, 2.0)
+    assert (p.trigger.forward_bias_k, p.trigger.forward_bias_cap_m, p.trigger.cross_k, p.trigger.cross_cap_m) == (0.4, 15.0, 0.5, 10.0)
+    assert p.gate.yaw_residual_max_rad == 0.35
+    assert (p.ukf.alpha, p.ukf.beta, p.ukf.kappa) == (1e-3, 2.0, 0.0)
+    assert (p.ukf.fix_fwd_min_m, p.ukf.fix_fwd_max_m, p.ukf.fix_lat_min_m, p.ukf.fix_lat_max_m) == (0.5, 8.0, 1.0, 12.0)
+    assert (p.smoother.lc_max_chord_m, p.smoother.lc_min_frame_gap, p.smoother.lc_min_path_ratio) == (50.0, 30, 5.0)
+    assert (p.smoother.savgol_window, p.smoother.savgol_order, p.smoother.lm_max_iterations) == (15, 3, 100)
+    assert p.error_model.cross_k == 3.0 and p.error_model.divergence_k == 0.03
+    assert p.estimator is Estimator.PAPER
+
+
+def test_localiser_params_carry_every_profile_value():
+    lp = localiser_params(replace_in(Profile(), "gate.enabled", False))
+    assert lp.yaw_gate is False
+    defaults = LocaliserParams()
+    same = localiser_params(Profile())
+    for f in dataclasses.fields(LocaliserParams):
+        if f.name not in ("gyro_arw",):
+            assert getattr(same, f.name) == getattr(defaults, f.name), f.name
+
+
+def test_shipped_profiles_load(tmp_path):
+    p = load_profile("kitti")
+    assert p.name == "kitti" and p.imu.gyro_arw == pytest.approx(5.8e-5)
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("trigger:\n  epsilonm: 1.0\n", "trigger.epsilonm: unknown key"),
+    ("gate:\n  yaw_residual_max_rad: wide\n", "gate.yaw_residual_max_rad: expected a number"),
+    ("ukf:\n  alpha: -1\n", "ukf.alpha: -1.0 is out of range"),
+    ("smoother:\n  lc_min_frame_gap: 2.5\n", "smoother.lc_min_frame_gap: expected an integer"),
+    ("gate:\n  enabled: 1\n", "gate.enabled: expected true/false"),
+    ("estimator: taco++\n", "estimator: 'taco++' is not one of"),
+    ("matcher: sift\n", "matcher: 'sift' is not one of"),
+    ("colour: red\n", "colour: unknown key"),
+    ("- a\n- b\n", "must be a mapping"),
+    ("trigger: [1, 2\n", "not valid YAML"),
+])
+def test_bad_profiles_name_file_and_key(tmp_path, text, needle):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_profile(f)
+    assert needle in str(exc.value)
+    assert str(f) in str(exc.value)
+    assert exc.value.exit_code == 2
+
+
+def test_missing_profile():
+    with pytest.raises(ConfigError, match="no such profile"):
+        load_profile("no_such_vehicle")
+    with pytest.raises(ConfigError, match="not found"):
+        load_profile("/nonexistent/x.yaml")
+
+
+def test_round_trip_through_a_dict():
+    p = replace_in(Profile(), "ukf.anisotropic", False)
+    assert profile_from_dict(profile_to_dict(p)) == p
+    assert math.isclose(profile_to_dict(p)["ukf"]["alpha"], 1e-3)
