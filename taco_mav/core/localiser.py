@@ -31,6 +31,9 @@ from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
 
 
+_NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
+
+
 @dataclass
 class _Tick:
     """One processed filter frame, kept in the bounded history for delayed fixes."""
@@ -80,11 +83,15 @@ class Localiser:
     """TACO paper mode. All times in autopilot seconds."""
 
     def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
-                 speed: float = 0.0, record: bool = True) -> None:
+                 speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> None:
+        """t0: start time, s; (x, y): start position, ENU metres; heading: ENU grid heading, rad; speed: m/s
+        (from the start-up GNSS reading); heading_offset: UTM meridian convergence, rad, added to every compass
+        heading; record: keep the online track, outcomes and smoother inputs (offline evaluation)."""
         self.p = params
         self.frame_dt = 1.0 / params.frame_rate_hz
         self.record = record
-        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.allow_reverse, max_dt_s=params.max_dt_s)
+        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.allow_reverse, max_dt_s=params.max_dt_s,
+                                 heading_offset=heading_offset)
         self.highpass = HighPass(params.accel_highpass_hz)
         self._interval_residual = MomentAccumulator()
         s_xy, s_th = params.initial_sigma_xy_m, params.initial_sigma_theta_rad
@@ -192,20 +199,23 @@ class Localiser:
             self._pending = None
 
     # ------------------------------------------------------------------ fixes
-    def add_fix(self, query_id: int, results: Sequence[MatchResult]) -> FixOutcome:
-        """Hand back the matcher's results for a query (same order as its crop centres). The fix is applied at
-        its capture time (rewind, update, replay) unless params.apply_on_arrival."""
+    def add_fix(self, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome:
+        """Hand back the matcher's results for a query (same order as its crop centres; None for a crop that
+        could not be matched, e.g. off the map). The fix is applied at its capture time (rewind, update,
+        replay) unless params.apply_on_arrival."""
         pending = self._pending
         now = self.t
         if pending is None or pending.query.query_id != query_id:
             return self._log(FixOutcome(query_id, False, "unknown_query", float("nan"), now))
         self._pending = None
         q = pending.query
-        if not results:
+        if not any(r is not None for r in results):
+            self._last_fix_t = max(self._last_fix_t, now if self.p.apply_on_arrival else q.capture_t)
             return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, now))
-        weights = tuple(float(r.w) for r in results)
-        k = best_candidate(results)
+        weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
+        k = best_candidate([r if r is not None else _NO_MATCH for r in results])
         best = results[k]
+        assert best is not None
         xy = fix_position(q.crop_centres[k], q.heading, best.t)
         psi = yaw_residual(best.R)
         if not (np.all(np.isfinite(xy)) and math.isfinite(psi) and math.isfinite(best.w) and best.w > 0):

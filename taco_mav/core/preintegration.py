@@ -69,11 +69,14 @@ class Preintegrator:
 
     speed: forward speed, m/s (clamped at 0 unless allow_reverse). theta: compass heading, ENU rad.
     x, y: dead-reckoned position, ENU metres. accel_fwd: last gravity-compensated forward accel, m/s^2.
+    heading_offset: added to the compass heading, rad: the UTM meridian convergence (grid heading = true
+    heading + convergence), so that headings live on the same grid as the UTM positions.
     """
 
     def __init__(self, t0: float, x: float = 0.0, y: float = 0.0, theta: float = 0.0, speed: float = 0.0,
-                 *, allow_reverse: bool = False, max_dt_s: float = 0.5) -> None:
+                 *, allow_reverse: bool = False, max_dt_s: float = 0.5, heading_offset: float = 0.0) -> None:
         self.t = t0
+        self.heading_offset = heading_offset
         self.x, self.y = x, y
         self.theta = theta
         self.speed = speed
@@ -97,7 +100,7 @@ class Preintegrator:
         self.t = sample.t
         dt = min(dt, self.max_dt_s)
         a = level_forward_accel(sample.accel_frd, sample.roll, sample.pitch)
-        theta = enu_heading(sample.yaw)
+        theta = wrap_angle(enu_heading(sample.yaw) + self.heading_offset)
         v0 = self.speed
         v1 = v0 + a * dt
         if not self.allow_reverse and v1 < 0.0:

@@ -1,0 +1,81 @@
+"""Answer a Localiser FixQuery: cut the crops from the satellite map, run the matcher, keep the crop order.
+
+Used by both the offline evaluator and the live daemon, so that the matcher sees the same crops either way.
+Query positions are ENU metres relative to the origin; the map wants absolute UTM, so `origin_utm` is added.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from taco_mav.cvgl.base import Crop, GroundFrame, Matcher
+from taco_mav.cvgl.satellite import SatelliteMap
+from taco_mav.core.types import FixQuery, MatchResult
+from taco_mav.errors import OffMapError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ServiceStats:
+    """Counters: triggers answered, crops off the map, matcher wall time (s)."""
+
+    answered: int = 0
+    crops_off_map: int = 0
+    triggers_off_map: int = 0
+    matcher_s: float = 0.0
+    crop_s: float = 0.0
+    per_trigger_s: list[float] = field(default_factory=list)
+
+
+class FixService:
+    """matcher: any `Matcher`; sat_map: the mosaic, or None for matchers that need no imagery (the emulator on
+    image-less drives: crops then carry an empty image but the right centre and heading); origin_utm: (2,)
+    UTM easting/northing of the Localiser's origin; crop_size_px and m_per_px from the profile's `map`."""
+
+    def __init__(self, matcher: Matcher, sat_map: SatelliteMap | None, origin_utm: np.ndarray, crop_size_px: int = 512,
+                 m_per_px: float = 0.2) -> None:
+        self.matcher = matcher
+        self.map = sat_map
+        self.origin = np.asarray(origin_utm, dtype=float)
+        self.size = int(crop_size_px)
+        self.m_per_px = float(m_per_px)
+        self.stats = ServiceStats()
+
+    def crops(self, query: FixQuery) -> list[Crop | None]:
+        """The query's crops in order; None where a crop is off the map."""
+        out: list[Crop | None] = []
+        for c in query.crop_centres:
+            centre = self.origin + np.asarray(c, dtype=float)
+            if self.map is None:
+                out.append(Crop(np.zeros((0, 0, 3), np.uint8), centre, float(query.heading), self.m_per_px))
+                continue
+            try:
+                out.append(self.map.crop(centre, query.heading, self.size, self.m_per_px))
+            except OffMapError as exc:
+                self.stats.crops_off_map += 1
+                log.debug("query %d: %s", query.query_id, exc)
+                out.append(None)
+        return out
+
+    def answer(self, query: FixQuery, frame: GroundFrame) -> list[MatchResult | None]:
+        """MatchResults aligned with query.crop_centres (None for crops off the map)."""
+        t0 = time.perf_counter()
+        crops = self.crops(query)
+        t1 = time.perf_counter()
+        valid = [c for c in crops if c is not None]
+        results: list[MatchResult] = self.matcher.match(frame, valid) if valid else []
+        t2 = time.perf_counter()
+        if not valid:
+            self.stats.triggers_off_map += 1
+        it = iter(results)
+        aligned = [next(it) if c is not None else None for c in crops]
+        self.stats.answered += 1
+        self.stats.crop_s += t1 - t0
+        self.stats.matcher_s += t2 - t1
+        self.stats.per_trigger_s.append(t2 - t0)
+        return aligned
