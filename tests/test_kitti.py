@@ -19,6 +19,7 @@ from taco_mav.datasets.kitti import (
     OXTS,
     OXTS_FIELDS,
     KittiDrive,
+    default_kitti_root,
     load_drive,
     load_sequence,
 )
@@ -347,3 +348,10 @@ def test_2011_09_26_drives_have_the_calibrated_camera(kitti_root: Path, drive: s
     assert d.camera.K[0, 0] == pytest.approx(721.5377) and d.camera.K[1, 1] == pytest.approx(721.5377)
     assert d.camera.K[0, 2] == pytest.approx(609.5593) and d.camera.K[1, 2] == pytest.approx(172.854)
     assert d.frame_times.shape == (0,)  # OXTS only in the shared copy
+
+
+def test_default_kitti_root_honours_the_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TACO_KITTI_ROOT", str(tmp_path))
+    assert default_kitti_root() == tmp_path
+    monkeypatch.setenv("TACO_KITTI_ROOT", str(tmp_path / "absent"))
+    assert default_kitti_root() is None

@@ -19,6 +19,7 @@ SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.fusion",
     "taco_mav.bench.cvgl_map",
     "taco_mav.bench.emulator",
+    "taco_mav.bench.kitti_load",
 )
 
 

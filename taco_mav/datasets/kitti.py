@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +52,7 @@ __all__ = [
     "KittiDrive",
     "OdometrySequence",
     "camera_from_calib",
+    "default_kitti_root",
     "load_drive",
     "load_sequence",
     "oxts_to_imu",
@@ -248,6 +250,16 @@ def _images(drive_dir: Path, n_oxts: int, indices: range, t0_ns: int) -> tuple[n
         raise DataError(f"{image_dir / 'data'}: {n_png} PNG files but {n_oxts} frames in timestamps.txt")
     times = (stamps[indices.start:indices.stop] - t0_ns) * 1e-9
     return times, tuple(image_dir / "data" / f"{i:010d}.png" for i in indices)
+
+
+def default_kitti_root() -> Path | None:
+    """The KITTI raw root named by $TACO_KITTI_ROOT, else `../shared/data/kitti_raw` beside a source checkout
+    (the CI layout); None when neither exists."""
+    env = os.environ.get("TACO_KITTI_ROOT")
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    beside = Path(__file__).resolve().parents[3] / "shared" / "data" / "kitti_raw"
+    return beside if beside.is_dir() else None
 
 
 def sequence_drive_dir(root: Path, sequence: str) -> tuple[str, Path]:
