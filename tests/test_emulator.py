@@ -121,3 +121,15 @@ def test_weight_falls_with_error() -> None:
     good, bad = pairs[pairs[:, 0] < 1.0, 1], pairs[pairs[:, 0] > 5.0, 1]
     assert len(good) > 50 and len(bad) > 50
     assert good.mean() > 0.6 and bad.mean() < 0.15
+
+
+def test_registry_builds_emulator_and_refuses_without_truth() -> None:
+    from taco_mav.config import Profile
+    from taco_mav.cvgl.registry import make_matcher
+    from taco_mav.errors import MatcherError
+
+    profile = Profile(matcher="emulator")
+    m = make_matcher(profile, lambda t: TRUTH, cross_area=True)
+    assert isinstance(m, EmulatorMatcher) and m.cross_area and m.name == "emulator"
+    with pytest.raises(MatcherError, match="needs ground truth"):
+        make_matcher(profile)

@@ -1,0 +1,148 @@
+"""FG2 adapter (extra `fg2`, torch): a thin wrapper turning a cross-view model into a `Matcher`.
+
+The model is any object with this interface (torch tensors, on the model's device):
+
+- `encode_ground(image, ground_from_pixel) -> feats`: image (1, 3, H, W) float in [0, 1] RGB;
+  ground_from_pixel (1, 3, 3) the flat-ground homography from pixels (u, v, 1) to (forward, left, 1) metres
+  (`GroundCamera.image_to_ground`). Called ONCE per trigger; feats is opaque to the adapter.
+- `match_aerial(feats, aerial, m_per_px) -> (R_img, t_px, mass)`: aerial (B, 3, S, S) float in [0, 1], the
+  heading-up crops; R_img (B, 2, 2) the rotation, in image coordinates (x right, y down), taking image-up to the
+  vehicle's estimated heading; t_px (B, 2) the vehicle position in crop pixels (x right, y down) relative to the
+  crop centre (S - 1) / 2; mass (B,) the Procrustes correspondence mass in [0, 1].
+
+`load_model(cfg)` builds it through `cfg.entry` ("module:function", called as fn(checkout, checkpoint, device))
+with the user's FG2 checkout on sys.path. `taco_mav.cvgl.fg2_tiny` is a small model with the same interface
+that the tests save and load through the same path. torch is imported lazily: without it, the package works and
+only this matcher raises MatcherError.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import Fg2Config
+from taco_mav.core.types import MatchResult
+from taco_mav.cvgl.base import Crop, GroundFrame
+from taco_mav.errors import MatcherError
+
+log = logging.getLogger(__name__)
+
+MIN_WEIGHT = 1e-3  # w is in (0, 1]: a zero or non-finite mass becomes this
+
+
+def _torch() -> Any:
+    try:
+        import torch
+    except ImportError:
+        raise MatcherError("the fg2 matcher needs torch: pip install 'taco_mav[fg2]'") from None
+    return torch
+
+
+def resolve_device(name: str) -> Any:
+    """torch.device for "auto" (CUDA when available), "cpu" or "cuda"."""
+    torch = _torch()
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise MatcherError("fg2.device is 'cuda' but torch sees no CUDA device")
+    return torch.device(name)
+
+
+def load_model(cfg: Fg2Config) -> Any:
+    """Import cfg.entry with cfg.checkout on sys.path and build the model from cfg.checkpoint (eval mode)."""
+    checkout, checkpoint = Path(cfg.checkout).expanduser(), Path(cfg.checkpoint).expanduser()
+    if not cfg.checkout or not checkout.is_dir():
+        raise MatcherError(f"fg2.checkout: FG2 checkout folder {str(checkout)!r} not found")
+    if not cfg.checkpoint or not checkpoint.is_file():
+        raise MatcherError(f"fg2.checkpoint: checkpoint file {str(checkpoint)!r} not found")
+    module_name, _, fn_name = cfg.entry.partition(":")
+    if not module_name or not fn_name:
+        raise MatcherError(f"fg2.entry: {cfg.entry!r} is not 'module:function'")
+    if str(checkout) not in sys.path:
+        sys.path.insert(0, str(checkout))
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise MatcherError(f"fg2.entry: cannot import {module_name!r} (checkout {checkout}): {exc}") from None
+    build = getattr(module, fn_name, None)
+    if build is None:
+        raise MatcherError(f"fg2.entry: module {module_name!r} has no {fn_name!r}")
+    model = build(checkout, checkpoint, resolve_device(cfg.device))
+    if hasattr(model, "eval"):
+        model.eval()
+    log.info("fg2 model %s loaded from %s", type(model).__name__, checkpoint)
+    return model
+
+
+class Fg2Matcher:
+    """A `Matcher` around a cross-view model (see the module docstring). model: an already built model; by
+    default it is loaded from cfg. camera: the ground camera of the frames."""
+
+    name = "fg2"
+
+    def __init__(self, cfg: Fg2Config, camera: GroundCamera, model: Any = None) -> None:
+        torch = _torch()
+        self.cfg = cfg
+        self.camera = camera
+        self.model = load_model(cfg) if model is None else model
+        params = list(self.model.parameters()) if hasattr(self.model, "parameters") else []
+        self.device = params[0].device if params else resolve_device(cfg.device)
+        self._ground_from_pixel = torch.as_tensor(camera.image_to_ground, dtype=torch.float32,
+                                                  device=self.device)[None]
+
+    def _autocast(self) -> Any:
+        torch = _torch()
+        enabled = self.cfg.fp16 and self.device.type == "cuda"
+        return torch.autocast(device_type=self.device.type, dtype=torch.float16, enabled=enabled)
+
+    def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
+        """One MatchResult per crop: the ground image is encoded once, the crops run as one batch."""
+        torch = _torch()
+        if frame.image.ndim != 3 or frame.image.shape[2] != 3 or frame.image.size == 0:
+            raise MatcherError(f"fg2: ground image must be (H, W, 3) RGB, got shape {frame.image.shape}")
+        if not crops:
+            return []
+        sizes = {c.image.shape for c in crops}
+        scales = {round(c.m_per_px, 9) for c in crops}
+        if len(sizes) != 1 or len(scales) != 1:
+            raise MatcherError(f"fg2: crops of one trigger must share size and m/px, got {sizes} and {scales}")
+        m_per_px = crops[0].m_per_px
+        start = time.perf_counter()
+        with torch.inference_mode(), self._autocast():
+            image = torch.from_numpy(np.ascontiguousarray(frame.image)).to(self.device)
+            image = image.permute(2, 0, 1)[None].float() / 255.0
+            feats = self.model.encode_ground(image, self._ground_from_pixel)
+            aerial = torch.from_numpy(np.stack([c.image for c in crops])).to(self.device)
+            aerial = aerial.permute(0, 3, 1, 2).float() / 255.0
+            R_img, t_px, mass = self.model.match_aerial(feats, aerial, m_per_px)
+        if self.device.type == "cuda":
+            torch.cuda.synchronize()
+        elapsed = (time.perf_counter() - start) / len(crops)
+        R_np = R_img.float().cpu().numpy().reshape(len(crops), 2, 2)
+        t_np = t_px.float().cpu().numpy().reshape(len(crops), 2)
+        m_np = mass.float().cpu().numpy().reshape(len(crops))
+        return [_to_result(R_np[i], t_np[i], float(m_np[i]), m_per_px, elapsed) for i in range(len(crops))]
+
+
+def _to_result(R_img: np.ndarray, t_px: np.ndarray, mass: float, m_per_px: float, elapsed: float) -> MatchResult:
+    """Image-frame (x right, y down) outputs -> MatchResult in the crop's (forward, left) frame.
+
+    (forward, left) = (-y, -x) is a reflection of the image axes, so an image-frame angle a becomes -a.
+    """
+    if not (np.isfinite(R_img).all() and np.isfinite(t_px).all() and math.isfinite(mass)):
+        log.warning("fg2: non-finite model output; returning a zero-weight answer")
+        return MatchResult(np.eye(2), np.zeros(2), MIN_WEIGHT, elapsed)
+    psi = -math.atan2(R_img[1, 0], R_img[0, 0])
+    c, s = math.cos(psi), math.sin(psi)
+    t = np.array([-t_px[1] * m_per_px, -t_px[0] * m_per_px])
+    w = float(min(max(mass, MIN_WEIGHT), 1.0))
+    return MatchResult(np.array([[c, -s], [s, c]]), t, w, elapsed)

@@ -1,0 +1,38 @@
+"""Matcher factory by profile name: "classical" (CPU), "emulator" (FG2 statistics, needs truth), "fg2" (torch).
+
+Implementations are imported lazily so that, e.g., torch is only needed when the fg2 matcher is asked for.
+"""
+
+from __future__ import annotations
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import Profile
+from taco_mav.cvgl.base import Matcher
+from taco_mav.cvgl.emulator import TruthFn
+from taco_mav.errors import ConfigError, MatcherError
+
+MATCHERS = ("classical", "emulator", "fg2")
+
+
+def make_matcher(profile: Profile, truth: TruthFn | None = None, *, cross_area: bool = False,
+                 camera: GroundCamera | None = None) -> Matcher:
+    """Build `profile.matcher`. truth(t) -> (E, N, theta) (absolute UTM metres, ENU rad) is required by the
+    emulator only; cross_area selects the emulator's cross-area figures; camera defaults to profile.camera."""
+    camera = camera or GroundCamera.from_config(profile.camera)
+    name = profile.matcher
+    if name == "classical":
+        from taco_mav.cvgl.classical import ClassicalMatcher
+
+        return ClassicalMatcher(profile.classical, camera)
+    if name == "emulator":
+        if truth is None:
+            raise MatcherError("matcher 'emulator' needs ground truth (it is a statistical model for simulation "
+                               "and evaluation, not a localiser); use 'classical' or 'fg2' on a vehicle")
+        from taco_mav.cvgl.emulator import EmulatorMatcher
+
+        return EmulatorMatcher(profile.emulator, truth, cross_area=cross_area)
+    if name == "fg2":
+        from taco_mav.cvgl.fg2 import Fg2Matcher
+
+        return Fg2Matcher(profile.fg2, camera)
+    raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")
