@@ -27,7 +27,6 @@ from taco_mav.errors import DataError
 from taco_mav.geo import UtmProjector, enu_from_ned_yaw, grid_convergence, wrap_angle
 
 DATE = "2011_09_30"
-T0 = "2011-09-30 11:54:39.239671138"
 T0_UNIX = 1317383679.239671138
 CALIB = (
     "calib_time: 09-Jan-2012 13:57:47\n"
