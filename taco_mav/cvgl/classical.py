@@ -1,0 +1,262 @@
+"""Classical CPU matcher: inverse perspective mapping + rotation search x masked NCC by FFT (paper Sec. III-C).
+
+Pipeline per trigger (one ground frame, K heading-up crops):
+1. the frame's grey image is projected ONCE to a bird's-eye view (BEV, `taco_mav.cvgl.ipm`) at the matcher's
+   resolution, vehicle at the bottom-centre pixel, forward = image-up; then local contrast normalisation (LCN).
+2. the BEV is rotated about the vehicle pixel by each candidate residual psi (CCW positive) in a grid over
+   +-rotation_range; every rotated template is restricted to a common mask (the intersection of the rotated
+   view wedges), normalised (zero mean, unit energy), and Fourier-transformed once; the FFTs are reused for
+   every crop.
+3. each crop is converted to grey, resampled to the matcher's resolution, LCN'd and transformed once; the
+   zero-normalised cross-correlation over all shifts is num / sqrt(local variance), the local sums coming from
+   FFT correlations with the common mask (exact where the template lies wholly on the crop; partial overlaps
+   down to `min_overlap` are scored with the template energy prorated).
+4. the best rotation is refined at +-step/2 and by a parabola through the three peak scores; the peak position
+   by a 2-D parabolic fit. w = psr / (psr + psr_at_half_weight) from the peak-to-sidelobe ratio.
+
+Output per crop (see `taco_mav.cvgl.base`): R = rotation by psi (CCW positive), t = vehicle (forward, left)
+metres from the crop centre in the crop frame, w in (0, 1].
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Sequence
+
+import cv2
+import numpy as np
+import scipy.fft as sfft
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import ClassicalMatcherConfig
+from taco_mav.core.types import MatchResult
+from taco_mav.cvgl.base import Crop, GroundFrame
+from taco_mav.cvgl.ipm import BevProjector
+from taco_mav.errors import MatcherError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ClassicalMatcher"]
+
+_EPS = 1e-6
+
+
+def _lcn(img: np.ndarray, mask: np.ndarray | None, sigma_px: float) -> np.ndarray:
+    """Local contrast normalisation: (x - local mean) / local std with Gaussian windows; normalised convolution
+    over `mask` (float32 0/1) so that masked-out pixels neither contribute nor get values (they return 0)."""
+    k = int(2 * math.ceil(3 * sigma_px) + 1)
+    if mask is None:
+        mean = cv2.GaussianBlur(img, (k, k), sigma_px)
+        d = img - mean
+        var = cv2.GaussianBlur(d * d, (k, k), sigma_px)
+        return d / np.sqrt(var + 1.0)
+    wsum = cv2.GaussianBlur(mask, (k, k), sigma_px) + _EPS
+    mean = cv2.GaussianBlur(img * mask, (k, k), sigma_px) / wsum
+    d = (img - mean) * mask
+    var = cv2.GaussianBlur(d * d, (k, k), sigma_px) / wsum
+    return d / np.sqrt(var + 1.0)
+
+
+def _parabola(ym: float, y0: float, yp: float) -> float:
+    """Vertex offset in (-0.5, 0.5) of the parabola through (-1, ym), (0, y0), (1, yp)."""
+    den = ym - 2.0 * y0 + yp
+    if not np.isfinite(den) or den >= -1e-12:
+        return 0.0
+    return float(np.clip(0.5 * (ym - yp) / den, -0.5, 0.5))
+
+
+class ClassicalMatcher:
+    """Matcher protocol implementation (`taco_mav.cvgl.base.Matcher`) for CPU-only use and for tests."""
+
+    name = "classical"
+
+    def __init__(self, cfg: ClassicalMatcherConfig, camera: GroundCamera) -> None:
+        self.cfg = cfg
+        self.camera = camera
+        m = cfg.bev_m_per_px
+        self.m_per_px = m
+        n_half = max(0, int(math.floor(cfg.rotation_range_rad / cfg.rotation_step_rad + 1e-9)))
+        self.angles = np.arange(-n_half, n_half + 1) * cfg.rotation_step_rad
+        # Template canvas: the view wedge within max_range, widened for the largest rotation; capped by
+        # bev_size_px along each axis.
+        probe = BevProjector(camera, (2 * cfg.bev_size_px + 1, cfg.bev_size_px), m, cfg.max_range_m, levels=1)
+        fl = np.c_[probe.fwd_m[probe.mask], probe.left_m[probe.mask]]
+        amax = float(np.max(np.abs(self.angles))) if len(self.angles) else 0.0
+        lat = 0.0
+        fwd_max = 0.0
+        for a in (-amax, 0.0, amax):
+            c, s = math.cos(a), math.sin(a)
+            lat = max(lat, float(np.abs(s * fl[:, 0] + c * fl[:, 1]).max()))
+            fwd_max = max(fwd_max, float((c * fl[:, 0] - s * fl[:, 1]).max()))
+        half_w = min(int(math.ceil(lat / m)) + 2, cfg.bev_size_px // 2)
+        height = min(int(math.ceil(fwd_max / m)) + 3, cfg.bev_size_px)
+        self._bev = BevProjector(camera, (2 * half_w + 1, height), m, cfg.max_range_m)
+        self.vehicle_px = self._bev.vehicle_px
+        base = self._bev.mask.astype(np.float32)
+        common = base.copy()
+        for a in self.angles:
+            common = np.minimum(common, self._rotate(base, a, cv2.INTER_NEAREST))
+        self._mask = common
+        self._mask_n = float(common.sum())
+        if self._mask_n < 100:
+            raise MatcherError(f"classical matcher: only {self._mask_n:.0f} BEV pixels remain under the rotation "
+                               "search; reduce rotation_range_rad or enlarge bev_size_px/max_range_m")
+        self._sigma_px = max(cfg.lcn_sigma_m / m, 0.5)
+        self._fft_shape: tuple[int, int] | None = None
+        self._crop_px: int | None = None
+        log.debug("classical matcher: template %dx%d px at %.2f m/px, %d angles, %.0f mask px",
+                  common.shape[1], common.shape[0], m, len(self.angles), self._mask_n)
+
+    # ------------------------------------------------------------------ geometry helpers
+    def _rotate(self, img: np.ndarray, angle: float, interp: int = cv2.INTER_LINEAR) -> np.ndarray:
+        """Rotate a template-canvas image by `angle` rad CCW (as displayed) about the vehicle pixel."""
+        if angle == 0.0:
+            return img
+        M = cv2.getRotationMatrix2D(self.vehicle_px, math.degrees(angle), 1.0)
+        h, w = img.shape[:2]
+        return cv2.warpAffine(img, M, (w, h), flags=interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+    def _setup_fft(self, crop_px: int) -> None:
+        """FFT size and searched shift range for crops of `crop_px` pixels at the matcher's resolution."""
+        h, w = self._mask.shape
+        u0, v0 = self.vehicle_px
+        c = (crop_px - 1) / 2.0
+        r = min(self.cfg.search_radius_m / self.m_per_px, c)
+        # template top-left shift s: vehicle crop pixel = s + (u0, v0); vehicle within c +- r.
+        self._sx = (int(math.ceil(c - r - u0)), int(math.floor(c + r - u0)))
+        self._sy = (int(math.ceil(c - r - v0)), int(math.floor(c + r - v0)))
+        ny = sfft.next_fast_len(max(self._sy[1] + h, crop_px - self._sy[0]), real=True)
+        nx = sfft.next_fast_len(max(self._sx[1] + w, crop_px - self._sx[0]), real=True)
+        self._fft_shape = (ny, nx)
+        self._crop_px = crop_px
+        pad = np.zeros((ny, nx), np.float32)
+        pad[:h, :w] = self._mask
+        self._mask_fc = np.conj(sfft.rfft2(pad, workers=1))
+        self._iy = np.arange(self._sy[0], self._sy[1] + 1) % ny
+        self._ix = np.arange(self._sx[0], self._sx[1] + 1) % nx
+
+    def _template_fft(self, bev: np.ndarray, angle: float) -> np.ndarray:
+        """Conjugate spectrum of the rotated, common-masked, zero-mean unit-energy template."""
+        t = self._rotate(bev, angle) * self._mask
+        t -= self._mask * (t.sum() / self._mask_n)
+        t /= math.sqrt(float((t * t).sum())) + _EPS
+        ny, nx = self._fft_shape  # type: ignore[misc]
+        pad = np.zeros((ny, nx), np.float32)
+        pad[: t.shape[0], : t.shape[1]] = t
+        return np.conj(sfft.rfft2(pad, workers=1))
+
+    def _corr(self, spec: np.ndarray, conj_t: np.ndarray) -> np.ndarray:
+        """Correlation over the searched shifts (rows sy, cols sx) from a crop spectrum and a conjugate one."""
+        full = sfft.irfft2(spec * conj_t, s=self._fft_shape, workers=1)
+        return full[np.ix_(self._iy, self._ix)]
+
+    # ------------------------------------------------------------------ matching
+    def _prepare_crop(self, crop: Crop) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Crop -> (spectrum of LCN grey, local std map over the common mask, overlap count), searched shifts."""
+        img = crop.image
+        if img.ndim != 3 or img.shape[0] != img.shape[1]:
+            raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
+        S = img.shape[0]
+        Sw = max(8, int(round(S * crop.m_per_px / self.m_per_px)))
+        grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        valid = (img.max(axis=2) > 0) if crop.valid_fraction < 1.0 else None
+        if Sw != S:
+            grey = cv2.resize(grey, (Sw, Sw), interpolation=cv2.INTER_AREA)
+            if valid is not None:
+                valid = cv2.resize(valid.astype(np.float32), (Sw, Sw), interpolation=cv2.INTER_AREA) > 0.5
+        if self._crop_px != Sw:
+            self._setup_fft(Sw)
+        vm = None if valid is None else valid.astype(np.float32)
+        f = _lcn(grey.astype(np.float32), vm, self._sigma_px)
+        ny, nx = self._fft_shape  # type: ignore[misc]
+        pads = np.zeros((3, ny, nx), np.float32)
+        pads[0, :Sw, :Sw] = f
+        pads[1, :Sw, :Sw] = f * f
+        pads[2, :Sw, :Sw] = 1.0 if vm is None else vm
+        specs = sfft.rfft2(pads, axes=(1, 2), workers=1)
+        s1 = self._corr(specs[0], self._mask_fc)
+        s2 = self._corr(specs[1], self._mask_fc)
+        n = np.maximum(self._corr(specs[2], self._mask_fc), 0.0)
+        var = np.maximum(s2 - s1 * s1 / np.maximum(n, 1.0), 0.0)
+        # sum f t is compared with sqrt(var * sum_overlap t^2) ~ sqrt(var * n / N_mask)
+        denom = np.sqrt(var * n / self._mask_n) + 1e-3
+        denom[n < self.cfg.min_overlap * self._mask_n] = np.inf
+        return specs[0], denom, n
+
+    def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
+        """One MatchResult per crop, in order (contract in `taco_mav.cvgl.base`)."""
+        t_start = time.perf_counter()
+        if not crops:
+            return []
+        image = frame.image
+        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        bev, _ = self._bev.project(grey)
+        bev = _lcn(bev, self._bev.mask.astype(np.float32), self._sigma_px)
+        prepared = [self._prepare_crop(c) for c in crops]
+        cache: dict[float, np.ndarray] = {}
+
+        def tmpl(a: float) -> np.ndarray:
+            key = round(a, 9)
+            if key not in cache:
+                cache[key] = self._template_fft(bev, a)
+            return cache[key]
+
+        h = 0.5 * self.cfg.rotation_step_rad
+        results: list[MatchResult] = []
+        for (spec, denom, _), crop in zip(prepared, crops):
+            maps: dict[float, np.ndarray] = {}
+
+            def score_at(a: float) -> np.ndarray:
+                key = round(a, 9)
+                if key not in maps:
+                    maps[key] = self._corr(spec, tmpl(a)) / denom
+                return maps[key]
+
+            peaks = {round(float(a), 9): float(score_at(float(a)).max()) for a in self.angles}
+            a_best = max(peaks, key=peaks.get)
+            if not np.isfinite(peaks[a_best]):
+                results.append(MatchResult(R=np.eye(2), t=np.zeros(2), w=_EPS))
+                continue
+            # Refine: +-step/2, then +-step/4 around the best so far, then a parabola through the last three.
+            d = h
+            while d > 0 and len(self.angles) > 1 and d >= 0.249 * self.cfg.rotation_step_rad:
+                for a in (a_best - d, a_best + d):
+                    peaks[round(a, 9)] = float(score_at(a).max())
+                a_best = max(peaks, key=peaks.get)
+                d *= 0.5
+            score = score_at(a_best)
+            peak = float(score.max())
+            iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+            d *= 2.0
+            lo_a, hi_a = round(a_best - d, 9), round(a_best + d, 9)
+            if d > 0 and lo_a in maps and hi_a in maps:
+                a_fit = a_best + d * _parabola(float(maps[lo_a][iy, ix]), peak, float(maps[hi_a][iy, ix]))
+            else:
+                a_fit = a_best
+            results.append(self._result(score, peak, a_fit, crop))
+        elapsed = time.perf_counter() - t_start
+        return [MatchResult(r.R, r.t, r.w, elapsed / len(crops)) for r in results]
+
+    def _result(self, score: np.ndarray, peak: float, angle: float, crop: Crop) -> MatchResult:
+        """Sub-pixel peak, PSR weight and the crop-frame translation for one crop's best score map."""
+        iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+        H, W = score.shape
+        dy = _parabola(score[iy - 1, ix], peak, score[iy + 1, ix]) if 0 < iy < H - 1 else 0.0
+        dx = _parabola(score[iy, ix - 1], peak, score[iy, ix + 1]) if 0 < ix < W - 1 else 0.0
+        sy = self._sy[0] + iy + dy
+        sx = self._sx[0] + ix + dx
+        u0, v0 = self.vehicle_px
+        c = (self._crop_px - 1) / 2.0  # type: ignore[operator]
+        veh_u, veh_v = sx + u0, sy + v0
+        t = np.array([(c - veh_v) * self.m_per_px, (c - veh_u) * self.m_per_px])
+        excl = max(1, int(round(self.cfg.psr_exclusion_m / self.m_per_px)))
+        finite = np.isfinite(score)
+        finite[max(0, iy - excl): iy + excl + 1, max(0, ix - excl): ix + excl + 1] = False
+        side = score[finite]
+        psr = float((peak - side.mean()) / (side.std() + _EPS)) if side.size > 10 else 0.0
+        psr = max(psr, 0.0)
+        w = psr / (psr + self.cfg.psr_at_half_weight)
+        ca, sa = math.cos(angle), math.sin(angle)
+        return MatchResult(R=np.array([[ca, -sa], [sa, ca]]), t=t, w=float(max(w, _EPS)))

@@ -1,0 +1,95 @@
+"""The classical matcher recovers known offsets and rotations on rendered frames of a textured GeoTIFF."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rasterio.transform import from_origin
+
+from taco_mav.bench.classical import textured_mosaic, write_geotiff
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import CameraConfig, ClassicalMatcherConfig
+from taco_mav.cvgl.base import GroundFrame
+from taco_mav.cvgl.classical import ClassicalMatcher
+from taco_mav.cvgl.satellite import SatelliteMap
+from taco_mav.datasets.synthetic.render import GroundRenderer
+
+WEST, NORTH, RES, SIZE = 500_000.0, 5_430_000.0, 0.2, 1500
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory) -> tuple[GroundRenderer, SatelliteMap, ClassicalMatcher]:
+    mosaic = textured_mosaic(7, SIZE, RES)
+    tif = Path(tmp_path_factory.mktemp("classical")) / "mosaic.tif"
+    write_geotiff(tif, mosaic, WEST, NORTH, RES)
+    cam = GroundCamera.from_config(CameraConfig())
+    renderer = GroundRenderer(mosaic, from_origin(WEST, NORTH, RES, RES), cam, max_range_m=80.0)
+    smap = SatelliteMap(tif)
+    yield renderer, smap, ClassicalMatcher(ClassicalMatcherConfig(), cam)
+    smap.close()
+
+
+def _psi(res) -> float:
+    """Residual yaw psi_res = atan2(R10, R00), radians CCW."""
+    return math.atan2(res.R[1, 0], res.R[0, 0])
+
+
+def _crop_at(smap: SatelliteMap, true_en: np.ndarray, heading: float, fwd: float, left: float):
+    """Crop centred so that the vehicle sits at (fwd, left) metres from the centre in the crop frame."""
+    c, s = math.cos(heading), math.sin(heading)
+    centre = true_en - fwd * np.array([c, s]) - left * np.array([-s, c])
+    return smap.crop(centre, heading, 512, 0.2)
+
+
+@pytest.mark.parametrize("psi_deg", [5.0, -5.0])
+def test_recovers_known_offset_and_rotation(world, psi_deg: float) -> None:
+    renderer, smap, matcher = world
+    true_en = np.array([WEST + 150.0, NORTH - 140.0])
+    theta = math.radians(63.0)
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], theta)), 0.0, renderer.camera)
+    # The query heading is off by -psi: the true heading is query + psi, so the matcher must report +psi.
+    q_heading = theta - math.radians(psi_deg)
+    crop = _crop_at(smap, true_en, q_heading, 6.0, -4.0)
+    (res,) = matcher.match(frame, [crop])
+    assert np.hypot(*(res.t - [6.0, -4.0])) < 0.5, res.t
+    assert abs(math.degrees(_psi(res)) - psi_deg) < 1.5, math.degrees(_psi(res))
+    np.testing.assert_allclose(res.R @ res.R.T, np.eye(2), atol=1e-12)
+    assert 0.0 < res.w <= 1.0 and res.elapsed_s > 0.0
+
+
+def test_five_crops_in_order_and_true_area_outweighs_unrelated(world) -> None:
+    renderer, smap, matcher = world
+    true_en = np.array([WEST + 170.0, NORTH - 120.0])
+    theta = math.radians(-100.0)
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], theta)), 0.0, renderer.camera)
+    offsets = [(0.0, 0.0), (8.0, 0.0), (-8.0, 0.0), (0.0, 8.0), (0.0, -8.0)]
+    crops = [_crop_at(smap, true_en, theta, f, l) for f, l in offsets]
+    unrelated = smap.crop(true_en + np.array([-110.0, -120.0]), theta, 512, 0.2)
+    res = matcher.match(frame, crops + [unrelated])
+    assert len(res) == 6
+    for r, off in zip(res[:5], offsets):
+        assert np.hypot(*(r.t - off)) < 0.5, (r.t, off)
+        assert abs(_psi(r)) < math.radians(1.5)
+    assert min(r.w for r in res[:5]) > res[5].w + 0.1, [r.w for r in res]
+
+
+def test_partially_off_map_crop_still_matches(world) -> None:
+    renderer, smap, matcher = world
+    # Vehicle 30 m from the western edge looking north: the crop's left side is off the mosaic (zeros).
+    true_en = np.array([WEST + 30.0, NORTH - 150.0])
+    theta = math.radians(90.0)
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], theta)), 0.0, renderer.camera)
+    c, s = math.cos(theta), math.sin(theta)
+    crop = smap.crop(true_en - 3.0 * np.array([c, s]), theta, 512, 0.2, min_valid=0.5)
+    assert crop.valid_fraction < 0.95
+    (res,) = matcher.match(frame, [crop])
+    assert np.hypot(*(res.t - [3.0, 0.0])) < 0.5, res.t
+
+
+def test_empty_crop_list_gives_empty_answer(world) -> None:
+    renderer, _, matcher = world
+    frame = GroundFrame(renderer.render((WEST + 150.0, NORTH - 150.0, 0.0)), 0.0, renderer.camera)
+    assert matcher.match(frame, []) == []
