@@ -232,9 +232,6 @@ class Fg2Config:
     # "module:function" building the model from (checkout, checkpoint, device); imported with the checkout on
     # sys.path. The default shim checks the published FG2 layout (see docs/matchers.md).
     entry: str = "taco_mav.cvgl.fg2_shim:build_model"
-    # "module:function" building the model from (checkout, checkpoint, device); imported with the checkout on
-    # sys.path. The default shim checks the published FG2 layout (see docs/matchers.md).
-    entry: str = "taco_mav.cvgl.fg2_shim:build_model"
 
 
 @dataclass(frozen=True)
