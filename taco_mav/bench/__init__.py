@@ -20,6 +20,7 @@ SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.cvgl_map",
     "taco_mav.bench.emulator",
     "taco_mav.bench.kitti_load",
+    "taco_mav.bench.classical",
 )
 
 
