@@ -1,0 +1,1 @@
+"""Offline evaluation: the same Localiser as the daemon, driven over a dataset deterministically."""

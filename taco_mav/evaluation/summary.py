@@ -1,0 +1,136 @@
+"""Turn a DriveRun into the results.json metrics (names per DESIGN.md) and the paper-style tables."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from taco_mav.evaluation.metrics import path_length_m, position_errors, rmse, steady_state_rmse
+from taco_mav.evaluation.runner import DriveRun
+
+REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")
+NON_REPRESENTATIVE = ("01", "04")
+
+
+def _num(x: float) -> float | None:
+    """A JSON-safe float (None for NaN/inf), rounded to 4 decimals."""
+    return round(float(x), 4) if math.isfinite(x) else None
+
+
+def errors(run: DriveRun) -> dict[str, np.ndarray]:
+    """Per-frame horizontal errors (m) of each trajectory after rigid first-pose alignment."""
+    th0 = float(run.truth_theta[0])
+    out = {
+        "online": position_errors(run.online_xy, run.truth_xy, float(run.online_theta[0]), th0),
+        "imu_only": position_errors(run.imu_only_xy, run.truth_xy, float(run.online_theta[0]), th0),
+    }
+    if run.smoothed is not None:
+        out["smoothed"] = position_errors(run.smoothed.poses[:, :2], run.truth_xy, float(run.smoothed.poses[0, 2]), th0)
+    return out
+
+
+def metrics(run: DriveRun) -> dict[str, Any]:
+    """The per-sequence metrics of results.json."""
+    err = errors(run)
+    length_km = path_length_m(run.truth_xy) / 1000.0
+    accepted = [o for o in run.outcomes if o.accepted]
+    attempts = len(run.outcomes)
+    ate = rmse(err["online"])
+    reasons = Counter(o.reason for o in run.outcomes if not o.accepted)
+    per_km = (lambda v: v / length_km) if length_km > 0 else (lambda v: float("nan"))
+    return {
+        "ate_m": _num(ate),
+        "ate_imu_only_m": _num(rmse(err["imu_only"])),
+        "ate_smoothed_m": _num(rmse(err["smoothed"])) if "smoothed" in err else None,
+        "length_km": _num(length_km),
+        "ate_m_per_km": _num(per_km(ate)),
+        "steady_rmse_m": _num(steady_state_rmse(err["online"], run.t, [o.capture_t for o in accepted])),
+        "fixes_per_km": _num(per_km(len(accepted))),
+        "attempts": attempts,
+        "accepted": len(accepted),
+        "camera_duty_cycle": _num(attempts / run.frames_available if run.frames_available else 0.0),
+        "max_error_m": _num(float(err["online"].max())),
+        "p95_error_m": _num(float(np.percentile(err["online"], 95))),
+        "imu_only_drift_m_per_km": _num(per_km(rmse(err["imu_only"]))),
+        "rejected": dict(sorted(reasons.items())),
+        "loop_closures": len(run.smoothed.loop_closures) if run.smoothed is not None else 0,
+        "matcher_s_per_100m": _num(run.matcher_s / (length_km * 10.0) if length_km > 0 else float("nan")),
+        "duration_s": _num(float(run.t[-1] - run.t[0])),
+        "wall_s": _num(run.wall_s),
+    }
+
+
+def summary(per_seq: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """Medians over the sequences run (all, and the paper's representative / non-representative groups)."""
+    def med(key: str, names) -> float | None:
+        vals = [per_seq[n][key] for n in names if n in per_seq and per_seq[n][key] is not None]
+        return _num(float(np.median(vals))) if vals else None
+
+    names = list(per_seq)
+    out: dict[str, Any] = {"median_ate_m": med("ate_m", names), "median_ate_imu_only_m": med("ate_imu_only_m", names),
+                           "median_ate_smoothed_m": med("ate_smoothed_m", names),
+                           "median_fixes_per_km": med("fixes_per_km", names), "sequences_run": len(names)}
+    for group, members in (("representative", REPRESENTATIVE), ("non_representative", NON_REPRESENTATIVE)):
+        if any(m in per_seq for m in members):
+            out[f"{group}_median_ate_m"] = med("ate_m", members)
+            out[f"{group}_median_ate_m_per_km"] = med("ate_m_per_km", members)
+    return out
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.2f}" if abs(v) < 100 else f"{v:.1f}"
+    return str(v)
+
+
+ROWS = (("IMU only ATE (m)", "ate_imu_only_m"), ("TACO ATE (m)", "ate_m"), ("TACO ATE (m/km)", "ate_m_per_km"),
+        ("TACO steady-state RMSE (m)", "steady_rmse_m"), ("TACO fixes/km", "fixes_per_km"),
+        ("TACO smoothed (m)", "ate_smoothed_m"), ("attempts / accepted", None), ("camera duty cycle", "camera_duty_cycle"),
+        ("max error (m)", "max_error_m"), ("length (km)", "length_km"))
+
+
+def table_md(per_seq: dict[str, dict[str, Any]]) -> str:
+    """A Markdown table laid out like the paper's Table I: representative sequences, their median, then the
+    non-representative ones and their median (whichever were run), then any other drives."""
+    rep = [s for s in REPRESENTATIVE if s in per_seq]
+    non = [s for s in NON_REPRESENTATIVE if s in per_seq]
+    other = [s for s in per_seq if s not in rep and s not in non]
+    cols: list[tuple[str, list[str] | str]] = [(s, s) for s in rep]
+    if rep:
+        cols.append(("Median (rep.)", rep))
+    cols += [(s, s) for s in non]
+    if non:
+        cols.append(("Median (non-rep.)", non))
+    cols += [(s, s) for s in other]
+    lines = ["| System | " + " | ".join(c for c, _ in cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for label, key in ROWS:
+        cells = []
+        for _, src in cols:
+            if isinstance(src, list):
+                vals = [per_seq[s][key] for s in src if key and per_seq[s].get(key) is not None]
+                cells.append(_fmt(float(np.median(vals))) if vals else "-")
+            elif key is None:
+                cells.append(f"{per_seq[src]['attempts']} / {per_seq[src]['accepted']}")
+            else:
+                cells.append(_fmt(per_seq[src].get(key)))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+ABLATION_LABELS = {"full": "TACO (full)", "no_yaw_gate": "- no yaw-residual gate", "single_crop": "- single crop",
+                   "isotropic_noise": "- isotropic noise", "no_forward_bias": "- no forward bias",
+                   "ukf_only": "- no Pose2 smoother (UKF only)"}
+
+
+def ablation_md(ablations: dict[str, dict[str, Any]]) -> str:
+    """The paper's Table III: ATE/km (median over the sequences run) per configuration, plus accepted fixes."""
+    lines = ["| Configuration | ATE / km (m/km) | median ATE (m) | accepted / attempts |", "|---|---|---|---|"]
+    for name, res in ablations.items():
+        lines.append(f"| {ABLATION_LABELS.get(name, name)} | {_fmt(res['median_ate_m_per_km'])} | "
+                     f"{_fmt(res['median_ate_m'])} | {res['accepted']} / {res['attempts']} |")
+    return "\n".join(lines) + "\n"
