@@ -17,6 +17,7 @@ log = logging.getLogger(__name__)
 
 SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.fusion",
+    "taco_mav.bench.evaluation",
     "taco_mav.bench.cvgl_map",
     "taco_mav.bench.emulator",
     "taco_mav.bench.kitti_load",

@@ -90,6 +90,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         x, y, th = truth.pose_at(t)
         return origin[0] + x, origin[1] + y, th
 
+    frame_at = _frame_source(drive, profile.matcher, camera)
     matcher = make_matcher(profile, truth_utm, cross_area=cross_area, camera=camera)
     if profile.matcher in NEEDS_IMAGES and sat_map is None:
         if drive.mosaic is None:
@@ -97,7 +98,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
                                "drive has none (a synthetic world's world.json names one)")
         sat_map = SatelliteMap(drive.mosaic)
     service = FixService(matcher, sat_map, origin, profile.map.crop_size_px, profile.map.crop_m_per_px)
-    frame_at = _frame_source(drive, profile.matcher, camera)
 
     imu = drive.imu
     t0 = float(imu.t[0])
@@ -123,6 +123,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     gt = np.array([truth.pose_at(ti) for ti in t])
     smoothed = loc.smoothed() if profile.smoother.enabled else None
     imu_only = np.column_stack([np.interp(t, imu.t, dead_xy[:, 0]), np.interp(t, imu.t, dead_xy[:, 1])])
+    centre_err = [float(np.hypot(*(q.centre - np.array(truth.pose_at(q.capture_t)[:2])))) for q in loc.queries]
     n_frames = len(drive.frame_times) if len(drive.frame_times) else len(t)
     return DriveRun(
         name=drive.name, sequence=drive.sequence, t=t, truth_xy=gt[:, :2], truth_theta=gt[:, 2],
@@ -130,6 +131,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         smoothed=smoothed, queries=list(loc.queries), outcomes=list(loc.outcomes), frames_available=n_frames,
         matcher_s=service.stats.matcher_s, wall_s=time.perf_counter() - wall0, origin_utm=origin,
         utm_epsg=int(drive.utm_epsg), mosaic=str(drive.mosaic) if drive.mosaic else None,
-        extra={"crops_off_map": service.stats.crops_off_map, "heading0": th0,
+        extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0},
     )

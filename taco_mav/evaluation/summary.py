@@ -57,6 +57,8 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "imu_only_drift_m_per_km": _num(per_km(rmse(err["imu_only"]))),
         "rejected": dict(sorted(reasons.items())),
         "loop_closures": len(run.smoothed.loop_closures) if run.smoothed is not None else 0,
+        "search_centre_error_median_m": _num(float(np.median(run.extra["search_centre_errors"])))
+        if run.extra.get("search_centre_errors") else None,
         "matcher_s_per_100m": _num(run.matcher_s / (length_km * 10.0) if length_km > 0 else float("nan")),
         "duration_s": _num(float(run.t[-1] - run.t[0])),
         "wall_s": _num(run.wall_s),
