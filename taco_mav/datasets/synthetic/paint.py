@@ -117,10 +117,12 @@ def _markings(cv: Canvas, scene: Scene) -> None:
     edge_lines, centre_lines, blocks = [], [], []
     for rd in scene.roads:
         s, d, n = _frame(rd.xy)
-        ends = [np.linalg.norm(scene.junctions - rd.xy[k], axis=1) for k in (0, -1)]
-        j0, j1 = int(np.argmin(ends[0])), int(np.argmin(ends[1]))
-        trim0 = scene.junction_radius[j0] + (6.5 if scene.junction_style[j0] == 1 else 1.5)
-        trim1 = scene.junction_radius[j1] + (6.5 if scene.junction_style[j1] == 1 else 1.5)
+        j0, j1, trim0, trim1 = -1, -1, 1.5, 1.5
+        if len(scene.junctions):
+            ends = [np.linalg.norm(scene.junctions - rd.xy[k], axis=1) for k in (0, -1)]
+            j0, j1 = int(np.argmin(ends[0])), int(np.argmin(ends[1]))
+            trim0 = scene.junction_radius[j0] + (6.5 if scene.junction_style[j0] == 1 else 1.5)
+            trim1 = scene.junction_radius[j1] + (6.5 if scene.junction_style[j1] == 1 else 1.5)
         inside = (s > trim0) & (s < s[-1] - trim1)
         if inside.sum() < 3:
             continue
@@ -139,7 +141,7 @@ def _markings(cv: Canvas, scene: Scene) -> None:
             # arriving at junction 0 means driving against the polyline: its right-hand side is +n
             right = n[i] * (1.0 if k == 0 else -1.0)
             blocks.append(np.array([rd.xy[i], rd.xy[i] + right * half]))
-            if scene.junction_style[jj] == 1:
+            if jj >= 0 and scene.junction_style[jj] == 1:
                 a = scene.junction_radius[jj] + 1.5
                 i0 = int(np.searchsorted(s, a if k == 0 else s[-1] - a - 4.0))
                 i0 = min(max(i0, 0), len(s) - 5)
