@@ -126,9 +126,9 @@ class Localiser:
             return
         self.t = sample.t
         self._interval_residual.add(self.highpass.step(self.pre.accel_fwd, dt))
-        # A frame closes at the first sample within a quarter period of its slot, so timestamp jitter
-        # (KITTI's 10 Hz OXTS wanders by ~+-10 ms) neither skips nor doubles frames.
-        tol = 0.25 * self.frame_dt
+        # A frame closes at the sample nearest its slot (within half a sample interval, at most a quarter
+        # period), so timestamp jitter (KITTI's 10 Hz OXTS wanders by ~+-10 ms) neither skips nor doubles frames.
+        tol = min(0.25 * self.frame_dt, 0.5 * dt)
         if self.t >= self._next_tick - tol:
             while self._next_tick <= self.t + tol:
                 self._next_tick += self.frame_dt
