@@ -84,8 +84,21 @@ def _load(req: EvalRequest) -> list:
                 raise DataError(f"unknown sequence {s!r} (known: {', '.join(sorted(ODOMETRY_SEQUENCES))})")
         return [load_sequence(Path(req.kitti_root), s) for s in req.sequences]
     if req.drives:
-        return [load_drive(Path(d)) for d in req.drives]
+        return [_load_drive(Path(d)) for d in req.drives]
     raise ConfigError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
+
+
+def _load_drive(path: Path):
+    """A KITTI-layout drive dir, or a synthetic world (its folder or the drive inside it: the world's exact
+    truth and rendered frames are then used)."""
+    if not path.is_dir():
+        raise DataError(f"{path}: drive directory not found")
+    for folder in (path, *path.parents[:3]):
+        if (folder / "world.json").is_file():
+            from taco_mav.datasets.synthetic import load_world
+
+            return load_world(folder)
+    return load_drive(path)
 
 
 def _key(drive) -> str:
