@@ -90,3 +90,15 @@ def test_clear_errors(tmp_path, kitti_root):
         evaluate(_req(tmp_path, None))
     with pytest.raises(ConfigError, match="unknown nope"):
         evaluate(_req(tmp_path, kitti_root, ablations=("nope",)))
+
+
+def test_synthetic_world_with_the_classical_matcher_end_to_end(tmp_path):
+    from taco_mav.datasets.synthetic import build_world
+
+    world = build_world(tmp_path / "world", seed=3, length_km=0.3, progress=False)
+    res = evaluate(EvalRequest(out=tmp_path / "run", drives=(world,), profile="synthetic", matcher="classical",
+                               plots=False, progress=False))
+    (s,) = res["sequences"].values()
+    assert s["accepted"] >= 10 and s["accepted"] >= 0.8 * s["attempts"]
+    assert s["ate_m"] < 2.0 < s["ate_imu_only_m"] or s["ate_m"] < 0.5 * s["ate_imu_only_m"]
+    assert s["matcher_s_per_100m"] is not None and s["matcher_s_per_100m"] > 0
