@@ -63,6 +63,27 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    from taco_mav.config import Estimator, load_profile
+    from taco_mav.link.daemon import DaemonOptions, run_daemon
+
+    origin = None
+    if args.origin:
+        try:
+            parts = [float(v) for v in args.origin.split(",")]
+            origin = (parts[0], parts[1], parts[2] if len(parts) > 2 else 0.0)
+            if len(parts) not in (2, 3):
+                raise ValueError
+        except (ValueError, IndexError):
+            raise TacoError(f"--origin: expected LAT,LON[,ALT], got {args.origin!r}") from None
+    profile = load_profile(args.profile)
+    estimator = Estimator(args.estimator) if args.estimator else profile.estimator
+    opts = DaemonOptions(connect=args.connect, camera=args.camera, map_path=Path(args.map) if args.map else None,
+                         log_dir=Path(args.log_dir) if args.log_dir else None, origin=origin, estimator=estimator,
+                         matcher_latency_s=args.matcher_latency)
+    return run_daemon(profile, opts)
+
+
 def _not_yet(issue: int) -> Callable[[argparse.Namespace], int]:
     def run(args: argparse.Namespace) -> int:
         print(f"taco-mav {args.command}: not yet implemented (tracked in issue {issue})", file=sys.stderr)
@@ -108,7 +129,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.set_defaults(func=_cmd_eval)
 
-    for name, issue in (("run", 6), ("sim", 6), ("demo", 6)):
+    p = sub.add_parser("run", parents=[common], help="the daemon: MAVLink IMU + camera in, GPS_INPUT out")
+    p.add_argument("--profile", required=True, help="vehicle profile name or YAML path (e.g. ardupilot_rover)")
+    p.add_argument("--connect", required=True, help="pymavlink connection: udpin:0.0.0.0:14550, tcp:HOST:PORT, "
+                   "/dev/ttyAMA0:921600")
+    p.add_argument("--camera", help="world:DIR | folder:DIR[@OFFSET_S] | device index | video file | RTSP/GStreamer")
+    p.add_argument("--map", help="satellite GeoTIFF (UTM); default: the world's mosaic with --camera world:DIR")
+    p.add_argument("--log-dir", help="folder for mav.tlog, events.jsonl and the resolved config")
+    p.add_argument("--origin", help="LAT,LON[,ALT] start fix instead of the first GPS_RAW_INT")
+    p.add_argument("--estimator", choices=("paper", "taco+"), help="estimator mode (default: the profile's)")
+    p.add_argument("--matcher-latency", type=float, default=0.0, help="artificial matcher delay, s (tests)")
+    p.set_defaults(func=_cmd_run)
+
+    for name, issue in (("sim", 6), ("demo", 6)):
         p = sub.add_parser(name, parents=[common], help=f"(issue {issue})")
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=_not_yet(issue))

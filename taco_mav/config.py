@@ -277,6 +277,7 @@ class OutputConfig:
     degrade_accuracy_m: float = field(default=10.0, metadata=_rng(0.0, open_lo=True))
     recover_accuracy_m: float = field(default=8.0, metadata=_rng(0.0, open_lo=True))
     stall_s: float = field(default=0.5, metadata=_rng(0.0, open_lo=True))  # no IMU this long: fix_type 1
+    vertical_accuracy_m: float = field(default=5.0, metadata=_rng(0.0, open_lo=True))  # reported epv (flat ground)
     send_yaw: bool = True  # GPS_INPUT.yaw from the compass heading (36000 = north)
     leap_seconds: int = field(default=18, metadata=_rng(0, 60))  # GPS - UTC for time_week/time_week_ms
     statustext_interval_s: float = field(default=5.0, metadata=_rng(0.0))  # rate limit of fix STATUSTEXTs

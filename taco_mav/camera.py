@@ -1,0 +1,247 @@
+"""Camera sources for the daemon: OpenCV VideoCapture (device index, video file, RTSP URL, GStreamer pipeline),
+an image folder with timestamps (KITTI `image_02`), and `world:DIR`, which renders a synthetic world at the
+simulator's true pose (SIMSTATE) for simulation.
+
+Every source answers `frame_near(t, max_gap_s) -> (t_frame, RGB uint8 (H, W, 3)) | None`. Times are seconds on
+the source's `clock`: the companion's monotonic clock for live cameras (stamped at grab), the autopilot clock
+for the folder (frame i at stamp_i - stamp_0 + offset) and world sources (the autopilot time of the SIMSTATE
+pose). The daemon maps query capture times onto that clock before asking.
+
+Spec strings (`--camera`): "world:DIR", "folder:DIR[@OFFSET_S]" or an existing directory, "0" (device index),
+a video file, "rtsp://...", or a GStreamer pipeline (contains "!").
+"""
+
+from __future__ import annotations
+
+import bisect
+import enum
+import json
+import logging
+import math
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.errors import ConfigError, DataError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["CameraSource", "ClockDomain", "FolderSource", "VideoSource", "WorldSource", "open_camera"]
+
+
+class ClockDomain(enum.Enum):
+    """Which clock a source's timestamps are on."""
+
+    COMPANION = "companion"
+    AUTOPILOT = "autopilot"
+
+
+class CameraSource(Protocol):
+    """A camera. `needs_pose` sources want `feed_pose(t_autopilot, lat, lon, yaw_ned)` calls (world:)."""
+
+    clock: ClockDomain
+    needs_pose: bool
+
+    def start(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None: ...
+
+
+class VideoSource:
+    """OpenCV VideoCapture in a thread; the last `ring` frames are kept with their grab time (companion clock).
+    Files are paced at their frame rate; devices and streams are reopened after failures (1 s back-off)."""
+
+    clock = ClockDomain.COMPANION
+    needs_pose = False
+
+    def __init__(self, spec: str, ring: int = 30, clock=time.monotonic) -> None:
+        self.spec = spec
+        self._clock = clock
+        self._frames: deque[tuple[float, np.ndarray]] = deque(maxlen=ring)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="taco-camera", daemon=True)
+        self.is_file = Path(spec).is_file()
+        self.grabbed = 0
+        self.failures = 0
+
+    def _open(self) -> cv2.VideoCapture:
+        if self.spec.isdigit():
+            return cv2.VideoCapture(int(self.spec))
+        if "!" in self.spec:
+            return cv2.VideoCapture(self.spec, cv2.CAP_GSTREAMER)
+        return cv2.VideoCapture(self.spec)
+
+    def start(self) -> None:
+        cap = self._open()
+        if not cap.isOpened():
+            raise ConfigError(f"--camera {self.spec!r}: OpenCV cannot open it")
+        self._cap = cap
+        self._thread.start()
+
+    def _run(self) -> None:
+        cap = self._cap
+        period = 0.0
+        if self.is_file:
+            fps = cap.get(cv2.CAP_PROP_FPS)
+            period = 1.0 / fps if fps and math.isfinite(fps) and fps > 0 else 0.1
+        next_t = self._clock()
+        while not self._stop.is_set():
+            ok, bgr = cap.read()
+            t = self._clock()
+            if not ok or bgr is None:
+                self.failures += 1
+                cap.release()
+                if self.is_file:
+                    log.info("camera %s: end of file", self.spec)
+                    return
+                log.warning("camera %s: read failed; reopening in 1 s", self.spec)
+                if self._stop.wait(1.0):
+                    return
+                cap = self._open()
+                continue
+            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB) if bgr.ndim == 3 else cv2.cvtColor(bgr, cv2.COLOR_GRAY2RGB)
+            with self._lock:
+                self._frames.append((t, rgb))
+            self.grabbed += 1
+            if period:
+                next_t += period
+                self._stop.wait(max(0.0, next_t - self._clock()))
+        cap.release()
+
+    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
+        with self._lock:
+            if not self._frames:
+                return None
+            best = min(self._frames, key=lambda f: abs(f[0] - t))
+        return best if abs(best[0] - t) <= max_gap_s else None
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+
+
+class FolderSource:
+    """Timestamped images: DIR/timestamps.txt + DIR/data/*.png (KITTI image_02), or a drive folder holding
+    image_02. Frame i is at (stamp_i - stamp_0) + offset_s on the autopilot clock; images load on demand."""
+
+    clock = ClockDomain.AUTOPILOT
+    needs_pose = False
+
+    def __init__(self, folder: str | Path, offset_s: float = 0.0) -> None:
+        from taco_mav.datasets.kitti_io import read_timestamps
+
+        folder = Path(folder)
+        if (folder / "image_02").is_dir():
+            folder = folder / "image_02"
+        stamps = folder / "timestamps.txt"
+        if not stamps.is_file():
+            raise ConfigError(f"--camera {folder}: no timestamps.txt (expected a KITTI image_02 folder)")
+        ns = read_timestamps(stamps)
+        self.paths = sorted((folder / "data").glob("*.png")) or sorted((folder / "data").glob("*.jpg"))
+        if len(self.paths) != len(ns):
+            raise DataError(f"{folder}: {len(self.paths)} images but {len(ns)} timestamps")
+        self.times = list((ns - ns[0]) * 1e-9 + offset_s)
+
+    def start(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
+        i = bisect.bisect_left(self.times, t)
+        best = min((j for j in (i - 1, i) if 0 <= j < len(self.times)), key=lambda j: abs(self.times[j] - t))
+        if abs(self.times[best] - t) > max_gap_s:
+            return None
+        bgr = cv2.imread(str(self.paths[best]), cv2.IMREAD_COLOR)
+        if bgr is None:
+            log.warning("%s: not readable", self.paths[best])
+            return None
+        return self.times[best], cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def world_mosaic(world_dir: Path) -> Path:
+    """The GeoTIFF named by DIR/world.json ("mosaic", relative to DIR)."""
+    meta = Path(world_dir) / "world.json"
+    try:
+        data = json.loads(meta.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"--camera world:{world_dir}: cannot read world.json ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("mosaic"), str):
+        raise ConfigError(f"{meta}: key \"mosaic\" missing")
+    path = (Path(world_dir) / data["mosaic"]).resolve()
+    if not path.is_file():
+        raise ConfigError(f"{meta}: mosaic {path} not found")
+    return path
+
+
+class WorldSource:
+    """Renders the synthetic world's ground view at the simulator's true pose (simulation only). Poses come in
+    through `feed_pose` (autopilot time s, lat/lon degrees, NED yaw rad, true north); a frame is rendered only
+    when asked for, at the stored pose nearest the requested time."""
+
+    clock = ClockDomain.AUTOPILOT
+    needs_pose = True
+
+    def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000) -> None:
+        import rasterio
+
+        from taco_mav.datasets.synthetic.render import GroundRenderer
+        from taco_mav.geo import UtmProjector
+
+        self.mosaic_path = world_mosaic(Path(world_dir))
+        with rasterio.open(self.mosaic_path) as ds:
+            bands = ds.read()
+            transform, epsg = ds.transform, ds.crs.to_epsg()
+        rgb = np.repeat(bands[:1], 3, axis=0) if bands.shape[0] < 3 else bands[:3]
+        self.renderer = GroundRenderer(np.ascontiguousarray(np.transpose(rgb, (1, 2, 0))), transform, camera)
+        self.projector = UtmProjector(int(epsg))
+        self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=ring)
+        self._lock = threading.Lock()
+
+    def feed_pose(self, t: float, lat: float, lon: float, yaw_ned: float) -> None:
+        e, n = self.projector.to_utm(lat, lon)
+        theta = math.pi / 2.0 - yaw_ned + float(self.projector.grid_convergence(lat, lon))
+        with self._lock:
+            if self._poses and t < self._poses[-1][0]:
+                self._poses.clear()  # the autopilot clock went back (reboot)
+            self._poses.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
+
+    def start(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
+        with self._lock:
+            if not self._poses:
+                return None
+            best = min(self._poses, key=lambda p: abs(p[0] - t))
+        if abs(best[0] - t) > max_gap_s:
+            return None
+        return best[0], self.renderer.render(np.array(best[1:]))
+
+
+def open_camera(spec: str, camera: GroundCamera) -> CameraSource:
+    """A camera source from a `--camera` spec (see the module docstring)."""
+    if spec.startswith("world:"):
+        return WorldSource(spec[len("world:"):], camera)
+    if spec.startswith("folder:") or (Path(spec).is_dir()):
+        body = spec[len("folder:"):] if spec.startswith("folder:") else spec
+        path, _, offset = body.partition("@")
+        try:
+            return FolderSource(path, float(offset) if offset else 0.0)
+        except ValueError:
+            raise ConfigError(f"--camera {spec!r}: offset after '@' must be seconds") from None
+    return VideoSource(spec)

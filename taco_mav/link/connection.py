@@ -1,0 +1,152 @@
+"""The MAVLink connection: open a pymavlink link from a connection string, send and receive whole messages,
+log every packet both ways to a tlog, keep our identity (sysid/compid) and the autopilot's.
+
+Connection strings are pymavlink's: "udpin:0.0.0.0:14550", "udpout:192.168.1.10:14550", "tcp:127.0.0.1:5760",
+or a serial device, optionally with its baud rate: "/dev/ttyAMA0:921600" (or "/dev/ttyAMA0,921600").
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import select
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.errors import ConfigError, TacoError  # noqa: E402
+from taco_mav.link.tlog import TlogWriter  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+_NETWORK = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
+AUTOPILOT_TYPES_EXCLUDED = (mavutil.mavlink.MAV_AUTOPILOT_INVALID,)
+
+
+def parse_connection(conn: str, default_baud: int) -> tuple[str, int]:
+    """(device, baud) from a connection string; serial "path:baud" / "path,baud" split off the baud."""
+    if not conn or not conn.strip():
+        raise ConfigError("--connect: empty connection string")
+    conn = conn.strip()
+    if conn.startswith(_NETWORK):
+        if not re.match(r"^[a-z]+:[^:]+:\d+$", conn):
+            raise ConfigError(f"--connect {conn!r}: expected e.g. udpin:0.0.0.0:14550 or tcp:127.0.0.1:5760")
+        return conn, default_baud
+    m = re.match(r"^(.+?)[:,](\d+)$", conn)
+    if m:
+        return m.group(1), int(m.group(2))
+    return conn, default_baud
+
+
+class Link:
+    """One pymavlink connection with a tlog. sysid 0 = adopt the autopilot's sysid at its first HEARTBEAT.
+
+    `recv(timeout)` returns the messages that arrived (waiting up to `timeout` seconds for the first);
+    `send(msg)` packs with our identity, writes and logs. Not thread-safe: use from the daemon loop only.
+    """
+
+    def __init__(self, conn: str, sysid: int, compid: int, baud: int = 921600, tlog: Path | None = None,
+                 wall_clock: Callable[[], float] = time.time) -> None:
+        device, baud = parse_connection(conn, baud)
+        self.sysid_fixed = sysid != 0
+        try:
+            self.conn = mavutil.mavlink_connection(device, baud=baud, source_system=sysid or 1,
+                                                   source_component=compid, dialect="ardupilotmega",
+                                                   autoreconnect=True)
+        except (OSError, ValueError) as exc:
+            raise TacoError(f"--connect {conn!r}: cannot open ({exc})") from None
+        self.mav = self.conn.mav
+        self.mav.robust_parsing = True
+        self.tlog = TlogWriter(tlog) if tlog is not None else None
+        self.wall_clock = wall_clock
+        self.target_system = 0
+        self.target_component = 0
+        self.sent = 0
+        self.received = 0
+        log.info("link open: %s (sysid %s, compid %d)", conn, sysid or "auto", compid)
+
+    def fileno(self) -> int | None:
+        fd = getattr(self.conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    def recv(self, timeout: float) -> list[Any]:
+        """Messages received within `timeout` seconds (all that are already buffered, or the first batch)."""
+        out: list[Any] = []
+        msg = self._recv_one()
+        if msg is None and timeout > 0:
+            fd = self.fileno()
+            if fd is not None:
+                try:
+                    select.select([fd], [], [], timeout)
+                except (OSError, ValueError):
+                    time.sleep(min(timeout, 0.005))
+            else:
+                time.sleep(min(timeout, 0.002))
+            msg = self._recv_one()
+        while msg is not None:
+            out.append(msg)
+            if len(out) >= 500:
+                break
+            msg = self._recv_one()
+        return out
+
+    def _recv_one(self) -> Any:
+        try:
+            msg = self.conn.recv_msg()
+        except (OSError, ConnectionError) as exc:
+            log.warning("link receive error: %s", exc)
+            return None
+        if msg is None:
+            return None
+        if msg.get_type() == "BAD_DATA":
+            return None
+        self.received += 1
+        if self.tlog is not None:
+            self.tlog.write(msg.get_msgbuf(), self.wall_clock())
+        return msg
+
+    def adopt_autopilot(self, msg: Any) -> bool:
+        """Take a HEARTBEAT's source as the autopilot (first one only); adopt its sysid unless ours is fixed."""
+        if self.target_system:
+            return False
+        self.target_system = msg.get_srcSystem()
+        self.target_component = msg.get_srcComponent()
+        if not self.sysid_fixed:
+            self.mav.srcSystem = self.target_system
+        log.info("autopilot: sysid %d compid %d (autopilot type %d, vehicle type %d); we are %d/%d",
+                 self.target_system, self.target_component, msg.autopilot, msg.type, self.mav.srcSystem,
+                 self.mav.srcComponent)
+        return True
+
+    def send(self, msg: Any) -> None:
+        """Pack and send one message (errors are logged, never raised: the loop must keep running)."""
+        try:
+            buf = msg.pack(self.mav)
+            self.conn.write(buf)
+            self.mav.seq = (self.mav.seq + 1) % 256
+            self.mav.total_packets_sent += 1
+            self.mav.total_bytes_sent += len(buf)
+        except (OSError, ConnectionError) as exc:
+            log.debug("link send error: %s", exc)
+            return
+        self.sent += 1
+        if self.tlog is not None:
+            self.tlog.write(buf, self.wall_clock())
+
+    def heartbeat(self) -> None:
+        """HEARTBEAT as an onboard controller."""
+        m = mavutil.mavlink
+        self.send(self.mav.heartbeat_encode(m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0,
+                                            m.MAV_STATE_ACTIVE))
+
+    def close(self) -> None:
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        if self.tlog is not None:
+            self.tlog.close()

@@ -1,0 +1,519 @@
+"""The daemon loop (`taco-mav run`): MAVLink IMU/attitude in, TACO Localiser, CVGL fixes from a worker thread,
+GPS-style position out at a steady rate.
+
+Threads: the loop thread owns the Link and the Localiser (every Localiser call happens here); the matcher worker
+only runs FixService.answer and posts results to a queue; a VideoCapture camera grabs in its own thread. Time:
+the filter runs on the autopilot clock (IMU timestamps); `ClockMap` maps the companion clock onto it.
+
+    d = Daemon(profile, DaemonOptions(connect="udpin:127.0.0.1:14550", log_dir=Path("run1")))
+    d.start(); ...; d.stop(); d.join()          # or d.run() in the calling thread (the CLI)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import signal
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from taco_mav.camera import CameraSource, ClockDomain, WorldSource, open_camera
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
+from taco_mav.core.localiser import Localiser
+from taco_mav.core.types import FixQuery, ImuSample
+from taco_mav.cvgl.base import GroundFrame
+from taco_mav.errors import ConfigError
+from taco_mav.link import encoders
+from taco_mav.link.connection import Link
+from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
+from taco_mav.link.eventlog import EventLog
+from taco_mav.link.health import Health
+from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
+from taco_mav.link.scheduler import Periodic
+from taco_mav.link.timesync import ClockMap
+from taco_mav.link.worker import MatchWorker, WorkResult
+
+log = logging.getLogger(__name__)
+
+OUTPUTS = ("gps_input", "global_position_sensor", "odometry")
+SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6
+MAV_AUTOPILOT_INVALID = 8
+MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER = 6, 18
+
+
+@dataclass(frozen=True)
+class DaemonOptions:
+    """connect: pymavlink connection string; camera: `--camera` spec; map_path: satellite GeoTIFF (default:
+    the world's mosaic for world: cameras); log_dir: tlog + JSONL events + resolved config; origin: (lat, lon,
+    alt) start fix instead of the first GPS_RAW_INT; matcher_latency_s: artificial matcher delay (tests);
+    frame_max_gap_s: largest |frame time - capture time| accepted."""
+
+    connect: str
+    camera: str | None = None
+    map_path: Path | None = None
+    log_dir: Path | None = None
+    origin: tuple[float, float, float] | None = None
+    estimator: Estimator = Estimator.PAPER
+    matcher_latency_s: float = 0.0
+    frame_max_gap_s: float = 0.15
+
+
+@dataclass
+class DaemonStats:
+    """Counters and timings. imu_to_estimate_s: per IMU sample, receive -> Localiser updated (perf_counter s);
+    output_times: monotonic send time of each position output (first configured message)."""
+
+    imu_samples: int = 0
+    imu_to_estimate_s: deque[float] = field(default_factory=lambda: deque(maxlen=50_000))
+    output_times: deque[float] = field(default_factory=lambda: deque(maxlen=50_000))
+    queries: int = 0
+    fixes: Counter[str] = field(default_factory=Counter)
+    dropped: Counter[str] = field(default_factory=Counter)
+    reboots: int = 0
+
+
+class Daemon:
+    """One daemon run. `run()` blocks until `stop()` (or a signal via `run_daemon`); `start()` runs it in a
+    thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs)."""
+
+    def __init__(self, profile: Profile, options: DaemonOptions, clock: Callable[[], float] = time.monotonic,
+                 wall_clock: Callable[[], float] = time.time) -> None:
+        if options.estimator is not Estimator.PAPER:
+            raise ConfigError(f"--estimator {options.estimator.value}: not built yet (issue 7); use 'paper'")
+        bad = [m for m in profile.output.messages if m not in OUTPUTS]
+        if bad or not profile.output.messages:
+            raise ConfigError(f"output.messages: {bad or '[]'} not in {', '.join(OUTPUTS)}")
+        if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
+            raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
+        self.profile, self.opt = profile, options
+        self.clock, self.wall_clock = clock, wall_clock
+        self.params = localiser_params(profile)
+        self.stop_event = threading.Event()
+        self.stats = DaemonStats()
+        self.decoders = Decoders()
+        self.clockmap = ClockMap(clock)
+        self.health = Health(profile.output.degrade_accuracy_m, profile.output.recover_accuracy_m, profile.output.stall_s)
+        self.ground_camera = GroundCamera.from_config(profile.camera)
+        self.loc: Localiser | None = None
+        self.origin: encoders.Origin | None = None
+        self._start_speed, self._start_course = 0.0, None  # m/s, NED rad
+        self.attitude: AttitudeReading | None = None
+        self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
+        self.last_imu: ImuReading | None = None
+        self._last_imu_clock = -math.inf
+        self._generation = 0
+        self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
+        self._simstate_ll: deque[tuple[float, float, float, float]] = deque(maxlen=3000)
+        self._last_status: dict[str, float] = {}
+        self._thread: threading.Thread | None = None
+        self.exit_code: int | None = None
+        self.link: Link | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Run the loop in a background thread."""
+        self._thread = threading.Thread(target=self.run, name="taco-daemon", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self.stop_event.set()
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def _setup(self) -> None:
+        p, opt = self.profile, self.opt
+        log_dir = Path(opt.log_dir) if opt.log_dir else None
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+            import yaml
+
+            (log_dir / "config.yaml").write_text(yaml.safe_dump(profile_to_dict(p), sort_keys=False))
+        self.events = EventLog(log_dir / "events.jsonl" if log_dir else None)
+        self.camera: CameraSource | None = open_camera(opt.camera, self.ground_camera) if opt.camera else None
+        map_path = opt.map_path or (self.camera.mosaic_path if isinstance(self.camera, WorldSource) else None)
+        self.sat_map = None
+        if map_path is not None:
+            from taco_mav.cvgl.satellite import SatelliteMap
+
+            self.sat_map = SatelliteMap(map_path, min_valid=p.map.min_valid_fraction, in_memory_max_mb=p.map.in_memory_max_mb)
+        self.matcher = None
+        if p.matcher == "emulator":
+            log.warning("matcher 'emulator' draws fixes from the SIMSTATE true pose: simulation only")
+        if p.matcher == "emulator" or self.sat_map is not None:
+            from taco_mav.cvgl.registry import make_matcher
+
+            self.matcher = make_matcher(p, truth=self._truth_at if p.matcher == "emulator" else None)
+        else:
+            log.warning("no satellite map (--map): no CVGL fixes, dead reckoning only")
+        if self.matcher is not None and self.camera is None and p.matcher != "emulator":
+            log.warning("no camera (--camera): no CVGL fixes, dead reckoning only")
+        self.worker: MatchWorker | None = None
+        self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
+                         tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock)
+        if self.camera is not None:
+            self.camera.start()
+        for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
+            log.warning("%s", text)
+        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0}
+        if self.imu_kind is not None:
+            rates[self.imu_kind] = p.link.imu_rate_hz
+        else:
+            rates["RAW_IMU"] = p.link.imu_rate_hz
+        if opt.origin is not None:
+            rates.pop("GPS_RAW_INT")
+            self._set_origin(*opt.origin, speed=0.0, course=None, source="--origin")
+        self.requester = StreamRequester(self.link.send, self.link.mav, rates) if p.link.request_rates else None
+        self.params_check = ParamCheck(self.link.send, self.link.mav) if p.link.check_params and \
+            "gps_input" in p.output.messages else None
+        now = self.clock()
+        self.t_heartbeat = Periodic(p.link.heartbeat_hz, now)
+        self.t_output = Periodic(p.output.rate_hz, now)
+        self.t_timesync = Periodic(p.link.timesync_hz, now) if p.link.timesync_hz > 0 else None
+        self.t_stats = Periodic(0.1, now + 10.0)
+
+    def run(self) -> int:
+        """The loop; returns 0 after a clean stop (logs flushed, threads stopped)."""
+        try:
+            self._setup()
+            self.events.write("start", connect=self.opt.connect, camera=self.opt.camera, matcher=self.profile.matcher,
+                              outputs=list(self.profile.output.messages), rate_hz=self.profile.output.rate_hz)
+            self._status(SEV_INFO, "started", key=None)
+            while not self.stop_event.is_set():
+                self._step()
+            self.exit_code = 0
+        finally:
+            self._shutdown()
+        return self.exit_code or 0
+
+    def _shutdown(self) -> None:
+        if self.link is not None and self.link.target_system:
+            self._status(SEV_NOTICE, "stopping", key=None)
+        for name in ("worker", "camera"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                try:
+                    obj.stop() if name == "worker" else obj.close()
+                except Exception:  # noqa: BLE001 - shutdown continues whatever failed
+                    log.exception("stopping %s", name)
+        if getattr(self, "events", None) is not None:
+            self.events.write("stop", stats=self.summary())
+            self.events.close()
+        if self.link is not None:
+            self.link.close()
+        if getattr(self, "sat_map", None) is not None:
+            self.sat_map.close()
+        log.info("stopped: %s", self.summary())
+
+    # ------------------------------------------------------------------ loop
+    def _step(self) -> None:
+        now = self.clock()
+        due = [self.t_output.next_due, self.t_heartbeat.next_due]
+        timeout = min(0.02, max(0.0, min(due) - now))
+        assert self.link is not None
+        msgs = self.link.recv(timeout)
+        received = time.perf_counter()
+        for msg in msgs:
+            try:
+                self._handle(msg, received)
+            except Exception:  # noqa: BLE001 - one bad message must never stop the loop
+                log.exception("handling %s", msg.get_type())
+                self.stats.dropped["handler_error"] += 1
+        self._drain_fixes()
+        self._poll_query()
+        self._periodic(self.clock())
+
+    def _periodic(self, now: float) -> None:
+        link = self.link
+        assert link is not None
+        if self.t_output.due(now):
+            self._send_outputs(now)
+        if self.t_heartbeat.due(now):
+            link.heartbeat()
+        if self.t_timesync is not None and link.target_system and self.t_timesync.due(now):
+            link.send(link.mav.timesync_encode(0, self.clockmap.request_ns()))
+        if self.requester is not None:
+            self.requester.tick(now, link.target_system, link.target_component)
+        if self.params_check is not None:
+            self.params_check.tick(now, link.target_system, link.target_component)
+        if self.t_stats.due(now):
+            self.events.write("stats", **self.summary())
+
+    # ------------------------------------------------------------------ inputs
+    def _handle(self, msg: Any, received: float) -> None:
+        kind = msg.get_type()
+        link = self.link
+        assert link is not None
+        if kind == "HEARTBEAT":
+            if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type not in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER)
+                    and (self.profile.link.target_sysid in (0, msg.get_srcSystem()))):
+                if link.adopt_autopilot(msg):
+                    self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
+            return
+        if not link.target_system or msg.get_srcSystem() != link.target_system:
+            return
+        if kind in IMU_MESSAGES:
+            self._on_imu(msg, received)
+        elif kind == "ATTITUDE":
+            self.attitude = self.decoders.attitude(msg) or self.attitude
+        elif kind == "GPS_RAW_INT":
+            if self.origin is None:
+                g = self.decoders.gnss(msg)
+                if g is not None:
+                    self._set_origin(g.lat, g.lon, g.alt, g.speed, g.course_ned, "GPS_RAW_INT")
+        elif kind == "SYSTEM_TIME":
+            self.clockmap.on_system_time(msg.time_boot_ms)
+        elif kind == "TIMESYNC":
+            if msg.tc1 == 0:  # the autopilot asks us: answer with our clock
+                link.send(link.mav.timesync_encode(self.clockmap.request_ns(), msg.ts1))
+            else:
+                self.clockmap.on_timesync_reply(msg.tc1, msg.ts1)
+        elif kind == "SIMSTATE":
+            self._on_simstate(msg)
+        elif kind == "COMMAND_ACK" and self.requester is not None:
+            self.requester.on_message(msg, link.target_system, link.target_component)
+        elif kind == "PARAM_VALUE" and self.params_check is not None:
+            warning = self.params_check.on_message(msg)
+            if warning:
+                self._status(SEV_ERROR, warning, key=None)
+                self.events.write("param_check", warning=warning)
+
+    def _on_imu(self, msg: Any, received: float) -> None:
+        kind = msg.get_type()
+        if self.imu_kind is None:
+            self.imu_kind = kind
+            log.info("IMU input: %s", kind)
+        if kind != self.imu_kind or (kind == "RAW_IMU" and getattr(msg, "id", 0) != 0):
+            return
+        r = self.decoders.imu(msg)
+        if r is None:
+            return
+        last = self.last_imu
+        if last is not None and r.t < last.t - self.profile.link.reboot_backstep_s:
+            self._reboot(last.t, r.t)
+        elif last is not None and r.t <= last.t:
+            self.stats.dropped["imu_out_of_order"] += 1
+            return
+        self.clockmap.on_autopilot_time(r.t)
+        self.last_imu = r
+        self._last_imu_clock = self.clock()
+        if self.attitude is None:
+            self.stats.dropped["imu_before_attitude"] += 1
+            return
+        if self.loc is None:
+            if self.origin is None:
+                self.stats.dropped["imu_before_origin"] += 1
+                return
+            self._make_localiser(r.t)
+        a = self.attitude
+        assert self.loc is not None
+        self.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
+        self.stats.imu_samples += 1
+        self.stats.imu_to_estimate_s.append(time.perf_counter() - received)
+
+    def _on_simstate(self, msg: Any) -> None:
+        pose = self.decoders.simstate(msg)
+        if pose is None or self.last_imu is None:
+            return
+        t = self.last_imu.t
+        if isinstance(self.camera, WorldSource):
+            self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)
+        if self.origin is not None:
+            e, n = self.origin.projector.to_utm(pose.lat, pose.lon)
+            theta = math.pi / 2 - pose.yaw + self.origin.convergence
+            self._truth.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
+
+    def _truth_at(self, t: float) -> tuple[float, float, float]:
+        """SIMSTATE pose nearest autopilot time t: absolute UTM E, N metres and grid heading (emulator only)."""
+        if not self._truth:
+            raise RuntimeError("no SIMSTATE received: the emulator matcher needs the simulator's true pose")
+        best = min(self._truth, key=lambda s: abs(s[0] - t))
+        return best[1], best[2], best[3]
+
+    # ------------------------------------------------------------------ origin, localiser, reboot
+    def _set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None, source: str) -> None:
+        self.origin = encoders.Origin.from_latlon(lat, lon, alt)
+        self._start_speed, self._start_course = speed, course
+        log.info("origin from %s: %.7f, %.7f, %.1f m (UTM EPSG:%d), speed %.2f m/s", source, lat, lon, alt,
+                 self.origin.projector.epsg, speed)
+        self.events.write("origin", source=source, lat=lat, lon=lon, alt=alt, speed=speed, course_ned=course,
+                          epsg=self.origin.projector.epsg, convergence_rad=self.origin.convergence)
+        self._status(SEV_INFO, f"origin {lat:.6f},{lon:.6f} ({source})", key=None)
+        self.service = None
+        if self.matcher is not None:
+            from taco_mav.cvgl.service import FixService
+
+            self.service = FixService(self.matcher, self.sat_map, self.origin.utm, self.profile.map.crop_size_px,
+                                      self.profile.map.crop_m_per_px)
+            self.worker = MatchWorker(self.service, self.opt.matcher_latency_s)
+            self.worker.start()
+
+    def _make_localiser(self, t: float, xy: tuple[float, float] = (0.0, 0.0), heading: float | None = None,
+                        speed: float | None = None, sigma_xy: float | None = None) -> None:
+        assert self.origin is not None and self.attitude is not None
+        conv = self.origin.convergence
+        if heading is None:
+            use_course = self._start_course is not None and self._start_speed > 1.0
+            psi = self._start_course if use_course else self.attitude.yaw
+            heading = math.remainder(math.pi / 2 - psi + conv, 2 * math.pi)
+        params = self.params if sigma_xy is None else dataclasses.replace(self.params, initial_sigma_xy_m=sigma_xy)
+        self.loc = Localiser(params, t, xy[0], xy[1], heading, self._start_speed if speed is None else speed,
+                             record=False, heading_offset=conv)
+        self._generation += 1
+        log.info("localiser anchored at t=%.3f s, xy (%.1f, %.1f) m, heading %.1f deg", t, xy[0], xy[1],
+                 math.degrees(heading))
+
+    def _reboot(self, t_last: float, t_new: float) -> None:
+        """Autopilot clock went back: re-anchor at the current estimate on the new clock."""
+        self.stats.reboots += 1
+        text = f"autopilot reboot? time {t_last:.1f}s -> {t_new:.1f}s: re-anchored"
+        log.warning("%s", text)
+        self.events.write("reboot", t_last=t_last, t_new=t_new)
+        self._status(SEV_WARNING, text, key=None)
+        self.clockmap.reset()
+        if self.loc is not None and self.attitude is not None:
+            est = self.loc.estimate()
+            self._make_localiser(t_new, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
+                                 max(est.sigma_h, self.params.initial_sigma_xy_m))
+        self.last_imu = None
+
+    # ------------------------------------------------------------------ fixes
+    def _poll_query(self) -> None:
+        if self.loc is None:
+            return
+        q = self.loc.poll_query()
+        if q is None:
+            return
+        self.stats.queries += 1
+        fetch = self._frame_fetcher(q)
+        if self.worker is None or fetch is None:
+            self.loc.cancel_query(q.query_id)
+            self.stats.fixes["no_matcher" if self.worker is None else "no_camera"] += 1
+            return
+        if not self.worker.submit(q, fetch, self._generation):
+            self.loc.cancel_query(q.query_id)
+            self.stats.fixes["worker_busy"] += 1
+
+    def _frame_fetcher(self, q: FixQuery) -> Callable[[], GroundFrame | None] | None:
+        """A callable the worker runs to get the frame nearest the capture time (rendering happens there)."""
+        cam, gap = self.camera, self.opt.frame_max_gap_s
+        if cam is None:
+            if self.profile.matcher != "emulator":
+                return None
+            return lambda: GroundFrame(np.zeros((0, 0, 3), np.uint8), q.capture_t, self.ground_camera)
+        if cam.clock is ClockDomain.AUTOPILOT:
+            t_src, back = q.capture_t, 0.0
+        else:
+            off = self.clockmap.offset
+            if off is None:
+                return None
+            t_src, back = q.capture_t - off, off
+
+        def fetch() -> GroundFrame | None:
+            got = cam.frame_near(t_src, gap)
+            return None if got is None else GroundFrame(got[1], got[0] + back, self.ground_camera)
+
+        return fetch
+
+    def _drain_fixes(self) -> None:
+        if self.worker is None or self.loc is None:
+            return
+        while not self.worker.out.empty():
+            res: WorkResult = self.worker.out.get_nowait()
+            q = res.query
+            if res.generation != self._generation:
+                self.stats.fixes["stale_generation"] += 1
+                continue
+            if res.results is None:
+                self.loc.cancel_query(q.query_id)
+                self.stats.fixes[res.error or "error"] += 1
+                self.events.write("fix", query_id=q.query_id, capture_t=q.capture_t, error=res.error)
+                continue
+            out = self.loc.add_fix(q.query_id, res.results)
+            self.stats.fixes[out.reason] += 1
+            est = self.loc.estimate()
+            self.events.write(
+                "fix", query_id=q.query_id, reason=q.reason, capture_t=q.capture_t, frame_t=res.frame_t,
+                arrival_t=out.arrival_t, epsilon=q.epsilon, heading=q.heading, centre=q.centre,
+                crop_centres=q.crop_centres,
+                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w} for r in res.results],
+                accepted=out.accepted, gate=out.reason, chosen=out.chosen, xy=out.xy, yaw_residual=out.yaw_residual,
+                sigma_fwd=out.sigma_fwd, sigma_lat=out.sigma_lat, nis=out.nis, matcher_s=res.elapsed_s,
+                estimate_xy=est.xy, sigma_h=est.sigma_h)
+            if out.accepted:
+                self._status(SEV_INFO, f"fix accepted w={max(out.weights):.2f} sig {est.sigma_h:.1f}m", key="fix")
+            else:
+                self._status(SEV_NOTICE, f"fix rejected: {out.reason}", key="fix")
+
+    # ------------------------------------------------------------------ outputs
+    def _send_outputs(self, now: float) -> None:
+        if self.loc is None or self.origin is None or self.link is None:
+            return
+        est = self.loc.estimate()
+        sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
+        change = self.health.update(sigma, now - self._last_imu_clock)
+        if change:
+            log.warning("%s", change) if not self.health.healthy else log.info("%s", change)
+            self.events.write("health", text=change, healthy=self.health.healthy)
+            self._status(SEV_WARNING if not self.health.healthy else SEV_INFO, change, key=None)
+        cfg = self.profile.output
+        sol = encoders.solution(est, self.origin, cfg, self.health.healthy)
+        mav = self.link.mav
+        for name in cfg.messages:
+            if name == "gps_input":
+                msg = encoders.gps_input(mav, sol, cfg, self.wall_clock())
+            elif name == "global_position_sensor":
+                now_ap = self.clockmap.now_autopilot()
+                msg = encoders.global_position_sensor(mav, sol, cfg, self.link.target_system,
+                                                      sol.t_autopilot if now_ap is None else now_ap)
+            else:
+                a = self.attitude
+                gyro = self.last_imu.gyro_frd if self.last_imu else (0.0, 0.0, 0.0)
+                msg = encoders.odometry(mav, sol, cfg, a.roll if a else 0.0, a.pitch if a else 0.0, gyro,
+                                        self.profile.ukf.compass_sigma_rad, self.stats.reboots)
+            self.link.send(msg)
+        self.stats.output_times.append(now)
+
+    def _status(self, severity: int, text: str, key: str | None) -> None:
+        """STATUSTEXT to the autopilot (and the log); `key` rate-limits by output.statustext_interval_s."""
+        now = self.clock()
+        if key is not None:
+            if now - self._last_status.get(key, -math.inf) < self.profile.output.statustext_interval_s:
+                return
+            self._last_status[key] = now
+        log.info("STATUSTEXT: %s", text)
+        if self.link is not None:
+            self.link.send(encoders.statustext(self.link.mav, severity, text))
+
+    def summary(self) -> dict[str, Any]:
+        """Counters for logs and tests."""
+        lat = np.array(self.stats.imu_to_estimate_s) * 1e3
+        return {"imu_samples": self.stats.imu_samples, "queries": self.stats.queries, "fixes": dict(self.stats.fixes),
+                "dropped": dict(self.stats.dropped), "rejected_inputs": dict(self.decoders.rejected),
+                "outputs": len(self.stats.output_times), "reboots": self.stats.reboots,
+                "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+                "clock_source": self.clockmap.source, "healthy": self.health.healthy,
+                "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0}
+
+
+def run_daemon(profile: Profile, options: DaemonOptions) -> int:
+    """Run the daemon in this thread until SIGINT/SIGTERM; returns the exit code (0 on a clean stop)."""
+    daemon = Daemon(profile, options)
+    previous: dict[int, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: daemon.stop())
+    try:
+        return daemon.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,155 @@
+"""Input decoders: MAVLink messages -> validated readings in SI units, with rejected inputs counted by reason.
+
+Frames and units (DESIGN.md):
+- RAW_IMU / SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: body FRD, acceleration in mG (a level vehicle at rest reads
+  zacc = -1000 mG -> -9.80665 m/s^2), gyro in mrad/s -> rad/s. Time: RAW_IMU time_usec, SCALED_IMU* time_boot_ms.
+- HIGHRES_IMU: body FRD, m/s^2 and rad/s; time_usec.
+- ATTITUDE: roll, pitch, yaw radians, NED (yaw 0 = north, CW); time_boot_ms.
+- GPS_RAW_INT: lat/lon degE7, alt mm AMSL, vel cm/s, cog cdeg (65535 = unknown).
+- SIMSTATE (simulators only): lat/lng degE7, yaw radians NED (the true pose).
+All times come out as autopilot seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+G0 = 9.80665  # m/s^2 per g, as ArduPilot scales RAW_IMU
+MAX_ACCEL = 16.0 * G0  # m/s^2: beyond a 16 g accelerometer's range
+MAX_GYRO = math.radians(2000.0)  # rad/s: beyond a 2000 deg/s gyro's range
+
+IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+
+
+@dataclass(frozen=True, slots=True)
+class ImuReading:
+    """t: autopilot s; accel_frd m/s^2 (gravity included); gyro_frd rad/s; source: the message name."""
+
+    t: float
+    accel_frd: tuple[float, float, float]
+    gyro_frd: tuple[float, float, float]
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeReading:
+    """t: autopilot s; roll, pitch, yaw: NED radians; rates: body rad/s."""
+
+    t: float
+    roll: float
+    pitch: float
+    yaw: float
+
+
+@dataclass(frozen=True, slots=True)
+class GnssReading:
+    """t: autopilot s; lat, lon: degrees WGS84; alt: metres AMSL; speed: m/s over ground; course_ned: radians
+    (0 = north, CW) or None when unknown; fix_type: GPS_FIX_TYPE; satellites: count (255 = unknown)."""
+
+    t: float
+    lat: float
+    lon: float
+    alt: float
+    speed: float
+    course_ned: float | None
+    fix_type: int
+    satellites: int
+
+
+@dataclass(frozen=True, slots=True)
+class SimPose:
+    """The simulator's true pose: lat, lon degrees; yaw NED radians (true north)."""
+
+    lat: float
+    lon: float
+    yaw: float
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class Decoders:
+    """Stateless conversions plus `rejected`, a Counter of "<MESSAGE>:<reason>" for every refused input."""
+
+    def __init__(self) -> None:
+        self.rejected: Counter[str] = Counter()
+
+    def _reject(self, msg_type: str, reason: str) -> None:
+        self.rejected[f"{msg_type}:{reason}"] += 1
+
+    def imu(self, msg: Any) -> ImuReading | None:
+        """Any of IMU_MESSAGES -> ImuReading, or None (counted) when implausible."""
+        kind = msg.get_type()
+        if kind == "HIGHRES_IMU":
+            updated = int(msg.fields_updated)
+            if updated and (updated & 0x3F) != 0x3F:
+                self._reject(kind, "partial")
+                return None
+            t = msg.time_usec * 1e-6
+            acc = (float(msg.xacc), float(msg.yacc), float(msg.zacc))
+            gyr = (float(msg.xgyro), float(msg.ygyro), float(msg.zgyro))
+        elif kind in ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
+            if kind == "RAW_IMU":
+                t = msg.time_usec * 1e-6
+            else:
+                t = msg.time_boot_ms * 1e-3
+            k_acc, k_gyr = G0 * 1e-3, 1e-3
+            acc = (msg.xacc * k_acc, msg.yacc * k_acc, msg.zacc * k_acc)
+            gyr = (msg.xgyro * k_gyr, msg.ygyro * k_gyr, msg.zgyro * k_gyr)
+        else:
+            self._reject(kind, "not_imu")
+            return None
+        if not _finite(t, *acc, *gyr):
+            self._reject(kind, "nonfinite")
+            return None
+        if t <= 0.0:
+            self._reject(kind, "no_time")
+            return None
+        if max(abs(a) for a in acc) > MAX_ACCEL:
+            self._reject(kind, "accel_range")
+            return None
+        if max(abs(g) for g in gyr) > MAX_GYRO:
+            self._reject(kind, "gyro_range")
+            return None
+        if acc == (0.0, 0.0, 0.0):
+            self._reject(kind, "all_zero")  # an IMU that is not delivering (every axis exactly zero)
+            return None
+        return ImuReading(t, acc, gyr, kind)
+
+    def attitude(self, msg: Any) -> AttitudeReading | None:
+        """ATTITUDE -> AttitudeReading (NED radians) or None (counted)."""
+        r, p, y = float(msg.roll), float(msg.pitch), float(msg.yaw)
+        if not _finite(r, p, y):
+            self._reject("ATTITUDE", "nonfinite")
+            return None
+        if abs(r) > math.pi + 1e-3 or abs(p) > math.pi / 2 + 1e-3 or not -math.pi - 1e-3 <= y <= 2 * math.pi + 1e-3:
+            self._reject("ATTITUDE", "range")
+            return None
+        return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi))
+
+    def gnss(self, msg: Any) -> GnssReading | None:
+        """GPS_RAW_INT with a 3D fix (fix_type >= 3) -> GnssReading, or None (counted) otherwise."""
+        kind = msg.get_type()
+        if int(msg.fix_type) < 3:
+            self._reject(kind, "no_3d_fix")
+            return None
+        lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lon == 0):
+            self._reject(kind, "position_range")
+            return None
+        speed = 0.0 if msg.vel == 65535 else msg.vel * 0.01
+        course = None if msg.cog == 65535 else math.radians(msg.cog * 0.01)
+        return GnssReading(msg.time_usec * 1e-6, lat, lon, msg.alt * 1e-3, speed, course, int(msg.fix_type),
+                           int(msg.satellites_visible))
+
+    def simstate(self, msg: Any) -> SimPose | None:
+        """SIMSTATE -> the simulator's true pose, or None (counted)."""
+        lat, lon, yaw = msg.lat * 1e-7, msg.lng * 1e-7, float(msg.yaw)
+        if not _finite(yaw) or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lng == 0):
+            self._reject("SIMSTATE", "range")
+            return None
+        return SimPose(lat, lon, yaw)

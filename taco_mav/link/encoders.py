@@ -1,0 +1,190 @@
+"""Output encoders: the filter's estimate -> GPS_INPUT, GLOBAL_POSITION_SENSOR, ODOMETRY, STATUSTEXT.
+
+Frames and units: the estimate is ENU metres relative to the origin on the UTM grid, heading theta on the grid
+(ENU rad). `Origin` maps it to WGS84 (lat/lon degE7 on the wire) and turns grid headings into true ones
+(true ENU heading = grid heading - meridian convergence). NED yaw psi = pi/2 - theta_true; GPS_INPUT.yaw is
+cdeg in 1..36000 (36000 = north; 0 means "no yaw" and is never sent as a heading). Every field is guarded:
+nothing non-finite reaches the wire.
+
+HDOP: there are no satellites, so HDOP is derived from the honest 1-sigma horizontal accuracy:
+HDOP = horiz_accuracy / hdop_uere_m clipped to [hdop_min, 99.99]. With the default UERE of 2 m, EKF3's
+gates (HDOP <= 2.5, accuracy <= 5 m) open and close together.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from taco_mav.config import OutputConfig
+from taco_mav.core.types import Estimate
+from taco_mav.geo import UtmProjector, gps_week_ms, utm_epsg_for
+
+GPS_FIX_NONE = 1  # GPS_FIX_TYPE_NO_FIX
+GPS_FIX_3D = 3
+IGNORE_VD = 32  # GPS_INPUT_IGNORE_FLAG_VEL_VERT
+IGNORE_VACC = 128  # GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
+IGNORE_VDOP = 4  # GPS_INPUT_IGNORE_FLAG_VDOP
+GPS_INPUT_IGNORE = IGNORE_VD | IGNORE_VACC | IGNORE_VDOP
+GLOBAL_POSITION_SRC_ESTIMATOR = 6
+GLOBAL_POSITION_UNHEALTHY = 1
+MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+MAV_ESTIMATOR_TYPE_VIO = 2
+
+
+@dataclass(frozen=True)
+class Origin:
+    """The start-up fix: lat, lon degrees WGS84, alt metres AMSL; its UTM zone, UTM position (2,) metres and the
+    meridian convergence there, radians (grid heading = true heading + convergence)."""
+
+    lat: float
+    lon: float
+    alt: float
+    projector: UtmProjector
+    utm: np.ndarray
+    convergence: float
+
+    @classmethod
+    def from_latlon(cls, lat: float, lon: float, alt: float, epsg: int | None = None) -> "Origin":
+        proj = UtmProjector(epsg if epsg is not None else utm_epsg_for(lat, lon))
+        e, n = proj.to_utm(lat, lon)
+        return cls(float(lat), float(lon), float(alt), proj, np.array([e, n]), float(proj.grid_convergence(lat, lon)))
+
+    def latlon(self, xy: np.ndarray) -> tuple[float, float]:
+        """WGS84 degrees of an ENU point (metres relative to the origin)."""
+        lat, lon = self.projector.to_latlon(self.utm[0] + float(xy[0]), self.utm[1] + float(xy[1]))
+        return float(lat), float(lon)
+
+
+@dataclass(frozen=True)
+class NavSolution:
+    """What every output is built from. lat/lon degrees; alt m AMSL; x_n/y_e: NED metres from the origin;
+    vn/ve: m/s true north/east; yaw_ned: true heading rad (0 = north, CW); sigma_h: 1-sigma horizontal m;
+    cov_ne: 2x2 NED position covariance m^2; speed_acc m/s; fix_type GPS_FIX_TYPE; t_autopilot s."""
+
+    t_autopilot: float
+    lat: float
+    lon: float
+    alt: float
+    x_n: float
+    y_e: float
+    vn: float
+    ve: float
+    speed: float
+    yaw_ned: float
+    sigma_h: float
+    cov_ne: np.ndarray
+    speed_acc: float
+    fix_type: int
+
+
+def _f(value: float, fallback: float) -> float:
+    return float(value) if math.isfinite(value) else float(fallback)
+
+
+def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) -> NavSolution:
+    """Build a NavSolution from an estimate; any non-finite part makes the solution unhealthy (fix_type 1) with
+    the origin's position and a 1 km accuracy, so nothing non-finite is ever encoded."""
+    xy = np.asarray(est.xy, dtype=float)
+    sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
+    ok = bool(np.all(np.isfinite(xy)) and math.isfinite(sigma) and math.isfinite(est.theta) and math.isfinite(est.speed))
+    if ok:
+        try:
+            lat, lon = origin.latlon(xy)
+        except Exception:  # noqa: BLE001 - a projection failure must degrade, never crash the output
+            ok = False
+    if not ok:
+        xy, lat, lon, sigma = np.zeros(2), origin.lat, origin.lon, 1000.0
+    theta_true = _f(est.theta, 0.0) - origin.convergence
+    speed = _f(est.speed, 0.0) if ok else 0.0
+    ve, vn = speed * math.cos(theta_true), speed * math.sin(theta_true)
+    yaw = math.remainder(math.pi / 2.0 - theta_true, 2.0 * math.pi)
+    cov = np.asarray(est.cov_xy, dtype=float) if ok else np.diag([sigma**2, sigma**2])
+    cov_ne = np.array([[cov[1, 1], cov[0, 1]], [cov[0, 1], cov[0, 0]]])
+    speed_acc = max(cfg.speed_accuracy_floor_mps, cfg.speed_accuracy_fraction * abs(speed))
+    return NavSolution(_f(est.t, 0.0), lat, lon, origin.alt, float(xy[1]), float(xy[0]), vn, ve, speed, yaw,
+                       float(sigma), cov_ne, speed_acc, GPS_FIX_3D if (ok and healthy) else GPS_FIX_NONE)
+
+
+def hdop_from_accuracy(sigma_h: float, uere_m: float, hdop_min: float) -> float:
+    """HDOP from the 1-sigma horizontal accuracy (see the module docstring)."""
+    if not math.isfinite(sigma_h):
+        return 99.99
+    return float(min(max(sigma_h / uere_m, hdop_min), 99.99))
+
+
+def yaw_cdeg(yaw_ned: float) -> int:
+    """True NED yaw, rad -> GPS_INPUT.yaw cdeg in 1..36000 (north = 36000; 0 is reserved for 'unknown')."""
+    if not math.isfinite(yaw_ned):
+        return 0
+    cdeg = int(round(math.degrees(yaw_ned) * 100.0)) % 36000
+    return 36000 if cdeg == 0 else cdeg
+
+
+def _degE7(deg: float) -> int:
+    return int(round(deg * 1e7))
+
+
+def gps_input(mav: Any, sol: NavSolution, cfg: OutputConfig, unix_time_s: float) -> Any:
+    """GPS_INPUT (ArduPilot GPS1_TYPE=14). unix_time_s: UTC now (GPS week/ms = UTC + cfg.leap_seconds)."""
+    week, week_ms = gps_week_ms(unix_time_s, cfg.leap_seconds) if math.isfinite(unix_time_s) and unix_time_s > 0 else (0, 0)
+    hacc = min(_f(sol.sigma_h, 1000.0), 1000.0)
+    hdop = hdop_from_accuracy(hacc, cfg.hdop_uere_m, cfg.hdop_min)
+    yaw = yaw_cdeg(sol.yaw_ned) if cfg.send_yaw else 0
+    return mav.gps_input_encode(
+        int(unix_time_s * 1e6) if unix_time_s > 0 else 0, cfg.gps_id, GPS_INPUT_IGNORE, week_ms, week, sol.fix_type,
+        _degE7(sol.lat), _degE7(sol.lon), _f(sol.alt, 0.0), hdop, hdop, _f(sol.vn, 0.0), _f(sol.ve, 0.0), 0.0,
+        _f(sol.speed_acc, 1.0), hacc, 0.0, cfg.satellites_visible, yaw)
+
+
+def global_position_sensor(mav: Any, sol: NavSolution, cfg: OutputConfig, target_system: int,
+                           now_autopilot: float) -> Any:
+    """GLOBAL_POSITION_SENSOR (PX4 aux global position). time_usec: estimate time on the autopilot clock;
+    processing_time: its age now, usec. alt_ellipsoid is unknown (NaN is the field's documented invalid value)."""
+    age = max(0.0, _f(now_autopilot - sol.t_autopilot, 0.0))
+    flags = 0 if sol.fix_type == GPS_FIX_3D else GLOBAL_POSITION_UNHEALTHY
+    return mav.global_position_sensor_encode(
+        target_system, 0, cfg.gps_sensor_id, int(max(sol.t_autopilot, 0.0) * 1e6), int(min(age * 1e6, 2**32 - 1)),
+        GLOBAL_POSITION_SRC_ESTIMATOR, flags, _degE7(sol.lat), _degE7(sol.lon), float("nan"), _f(sol.alt, 0.0),
+        min(_f(sol.sigma_h, 1000.0), 1000.0), cfg.vertical_accuracy_m)
+
+
+def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy]
+
+
+def odometry(mav: Any, sol: NavSolution, cfg: OutputConfig, roll: float, pitch: float, gyro_frd: tuple[float, float, float],
+             yaw_sigma_rad: float, reset_counter: int) -> Any:
+    """ODOMETRY: position in a local NED frame about the origin (z = 0: flat ground), attitude from the latest
+    ATTITUDE roll/pitch and our yaw, velocity in body FRD (forward speed), rates from the IMU. Covariances are
+    the 21-entry upper triangles (x, y, z, roll, pitch, yaw); z takes the horizontal variance (flat-ground
+    assumption), roll/pitch 0.01 rad^2."""
+    c = sol.cov_ne
+    var_h = _f(sol.sigma_h, 1000.0) ** 2
+    pose = [0.0] * 21
+    pose[0], pose[1], pose[6] = _f(c[0, 0], var_h), _f(c[0, 1], 0.0), _f(c[1, 1], var_h)
+    pose[11], pose[15], pose[18], pose[20] = var_h, 0.01, 0.01, yaw_sigma_rad**2
+    vel = [0.0] * 21
+    sa2 = _f(sol.speed_acc, 1.0) ** 2
+    vel[0], vel[6], vel[11], vel[15], vel[18], vel[20] = sa2, sa2, sa2, 0.01, 0.01, 0.01
+    q = _quat(_f(roll, 0.0), _f(pitch, 0.0), _f(sol.yaw_ned, 0.0))
+    quality = -1 if sol.fix_type != GPS_FIX_3D else max(1, min(100, int(round(100.0 * (1.0 - sol.sigma_h / cfg.degrade_accuracy_m)))))
+    g = [_f(v, 0.0) for v in gyro_frd]
+    return mav.odometry_encode(
+        int(max(sol.t_autopilot, 0.0) * 1e6), MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, _f(sol.x_n, 0.0), _f(sol.y_e, 0.0),
+        0.0, q, _f(sol.speed, 0.0), 0.0, 0.0, g[0], g[1], g[2], pose, vel, reset_counter & 0xFF, MAV_ESTIMATOR_TYPE_VIO,
+        quality)
+
+
+def statustext(mav: Any, severity: int, text: str) -> Any:
+    """STATUSTEXT, text truncated to the field's 50 bytes (prefixed 'TACO: ')."""
+    raw = f"TACO: {text}".encode("ascii", "replace")[:50]
+    return mav.statustext_encode(severity, raw)

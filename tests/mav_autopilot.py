@@ -1,0 +1,138 @@
+"""A minimal MAVLink autopilot for link tests: a real pymavlink endpoint on 127.0.0.1 that drives a straight,
+constant-speed, level rover and records what the daemon sends back.
+
+Sends HEARTBEAT 1 Hz, GPS_RAW_INT (3D fix) for the first second, RAW_IMU at `imu_hz` (level at rest: zacc
+-1000 mG), ATTITUDE at `att_hz`, SYSTEM_TIME 1 Hz, SIMSTATE (the true pose) at 10 Hz; answers
+PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`), COMMAND_LONG (ACK accepted) and TIMESYNC.
+Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; autopilot time = boot_s + elapsed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.geo import UtmProjector  # noqa: E402
+
+m = mavutil.mavlink
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Received:
+    t: float  # monotonic arrival
+    msg: object
+
+
+@dataclass
+class MiniAutopilot:
+    port: int
+    lat0: float = 49.0
+    lon0: float = 8.4
+    alt0: float = 115.0
+    yaw_deg: float = 30.0
+    speed: float = 5.0
+    imu_hz: float = 100.0
+    att_hz: float = 50.0
+    boot_s: float = 100.0
+    gps1_type: int = 14
+    send_simstate: bool = True
+    received: list[Received] = field(default_factory=list)
+    params_asked: list[str] = field(default_factory=list)
+    commands: list[int] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{self.port}", source_system=1, source_component=1,
+                                               dialect="ardupilotmega")
+        self.proj = UtmProjector.for_latlon(self.lat0, self.lon0)
+        self.e0, self.n0 = self.proj.to_utm(self.lat0, self.lon0)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self.t_start = 0.0
+
+    # truth ------------------------------------------------------------
+    def truth_latlon(self, elapsed: float) -> tuple[float, float]:
+        """True position after `elapsed` seconds (the straight line is on the true-north frame)."""
+        d = self.speed * elapsed
+        psi = math.radians(self.yaw_deg)
+        # metres north/east on the UTM grid: rotate the true course by the convergence
+        conv = float(self.proj.grid_convergence(self.lat0, self.lon0))
+        theta_grid = math.pi / 2 - psi + conv
+        lat, lon = self.proj.to_latlon(self.e0 + d * math.cos(theta_grid), self.n0 + d * math.sin(theta_grid))
+        return float(lat), float(lon)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.conn.close()
+
+    def _run(self) -> None:
+        mav = self.conn.mav
+        self.t_start = time.monotonic()
+        k_imu = k_att = k_sim = 0
+        next_hb = next_st = 0.0
+        while not self._stop.is_set():
+            el = time.monotonic() - self.t_start
+            t_ap = self.boot_s + el
+            if el >= next_hb:
+                mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
+                next_hb += 1.0
+            if el >= next_st:
+                mav.system_time_send(int(time.time() * 1e6), int(t_ap * 1e3))
+                if el < 1.0:
+                    lat, lon = self.truth_latlon(el)
+                    mav.gps_raw_int_send(int(t_ap * 1e6), 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3),
+                                         80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12)
+                next_st += 0.25 if el < 1.0 else 1.0
+            while k_att / self.att_hz <= el:
+                mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)
+                k_att += 1
+            while k_imu / self.imu_hz <= el:
+                t_s = self.boot_s + k_imu / self.imu_hz
+                mav.raw_imu_send(int(t_s * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
+                k_imu += 1
+            if self.send_simstate and k_sim / 10.0 <= el:
+                lat, lon = self.truth_latlon(el)
+                mav.simstate_send(0.0, 0.0, math.radians(self.yaw_deg), 0, 0, -9.8, 0, 0, 0, int(lat * 1e7),
+                                  int(lon * 1e7))
+                k_sim += 1
+            self._answer()
+            time.sleep(0.002)
+
+    def _answer(self) -> None:
+        mav = self.conn.mav
+        while True:
+            msg = self.conn.recv_msg()
+            if msg is None:
+                return
+            kind = msg.get_type()
+            self.received.append(Received(time.monotonic(), msg))
+            if kind == "PARAM_REQUEST_READ":
+                name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
+                self.params_asked.append(name)
+                if name == "GPS1_TYPE":
+                    mav.param_value_send(b"GPS1_TYPE", float(self.gps1_type), m.MAV_PARAM_TYPE_INT8, 900, 1)
+            elif kind == "COMMAND_LONG":
+                self.commands.append(int(msg.param1))
+                mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)
+            elif kind == "TIMESYNC" and msg.tc1 == 0:
+                mav.timesync_send(int((self.boot_s + time.monotonic() - self.t_start) * 1e9), msg.ts1)
+
+    def of_type(self, kind: str) -> list[Received]:
+        return [r for r in self.received if r.msg.get_type() == kind]

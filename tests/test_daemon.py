@@ -1,0 +1,171 @@
+"""The daemon over real UDP on 127.0.0.1 against a minimal pymavlink autopilot (tests/mav_autopilot.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from taco_mav.config import Profile, profile_from_dict
+from taco_mav.geo import UtmProjector
+from taco_mav.link.daemon import Daemon, DaemonOptions
+from mav_autopilot import MiniAutopilot, free_udp_port
+
+DRIVE_S = 5.0
+
+
+def _profile() -> Profile:
+    return profile_from_dict({"matcher": "emulator",
+                              "output": {"messages": ["gps_input", "global_position_sensor", "odometry"]}})
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory):
+    """One 5 s drive: the daemon (thread) on udpin, the autopilot on udpout; yields (daemon, autopilot, log_dir)."""
+    log_dir = tmp_path_factory.mktemp("daemon")
+    port = free_udp_port()
+    daemon = Daemon(_profile(), DaemonOptions(connect=f"udpin:127.0.0.1:{port}", log_dir=log_dir,
+                                              matcher_latency_s=0.3))
+    daemon.start()
+    time.sleep(0.3)
+    ap = MiniAutopilot(port)
+    ap.start()
+    time.sleep(DRIVE_S)
+    ap_elapsed = time.monotonic() - ap.t_start
+    daemon.stop()
+    daemon.join(5.0)
+    ap.stop()
+    yield daemon, ap, log_dir, ap_elapsed
+
+
+def test_clean_stop(drive) -> None:
+    daemon, _, _, _ = drive
+    assert daemon.exit_code == 0
+    assert not daemon._thread.is_alive()
+
+
+def test_gps_input_rate(drive) -> None:
+    _, ap, _, _ = drive
+    got = ap.of_type("GPS_INPUT")
+    times = np.array([r.t for r in got])
+    assert len(times) >= 20
+    gaps = np.diff(times)
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    assert rate >= 4.9, rate
+    assert gaps.mean() < 0.215
+    big = gaps > 0.245
+    assert not np.any(big[1:] & big[:-1]), gaps
+
+
+def test_gps_input_fields_and_position(drive) -> None:
+    _, ap, _, _ = drive
+    got = ap.of_type("GPS_INPUT")
+    last = got[-1]
+    msg = last.msg
+    assert msg.fix_type == 3
+    assert msg.gps_id == 0
+    assert msg.satellites_visible == 10
+    # honest 1-sigma of the paper's UKF: grows ~4-5 m within 2 s of a fix at its process noise; below degrade
+    assert all(0.0 < r.msg.horiz_accuracy < 10.0 and r.msg.fix_type == 3 for r in got[2:])
+    assert min(r.msg.horiz_accuracy for r in got) < 2.0
+    assert msg.hdop == pytest.approx(max(msg.horiz_accuracy / 2.0, 0.5), rel=1e-5)
+    assert msg.ignore_flags == (32 | 128 | 4)
+    assert abs(msg.yaw - 3000) <= 30  # 30 deg true
+    assert abs(math.hypot(msg.vn, msg.ve) - 5.0) < 0.2
+    assert abs(math.degrees(math.atan2(msg.ve, msg.vn)) - 30.0) < 1.0
+    assert abs(msg.alt - 115.0) < 1e-3
+    # position against the truth at the arrival time (the estimate is at most a few IMU periods old)
+    lat_t, lon_t = ap.truth_latlon(last.t - ap.t_start)
+    proj = UtmProjector.for_latlon(lat_t, lon_t)
+    e_t, n_t = proj.to_utm(lat_t, lon_t)
+    e, n = proj.to_utm(msg.lat * 1e-7, msg.lon * 1e-7)
+    assert math.hypot(e - e_t, n - n_t) < 2.0
+    week, ms = msg.time_week, msg.time_week_ms
+    assert week > 2200 and 0 <= ms < 604_800_000
+
+
+def test_other_outputs(drive) -> None:
+    _, ap, _, _ = drive
+    gps = ap.of_type("GLOBAL_POSITION_SENSOR")[-1].msg
+    odo = ap.of_type("ODOMETRY")[-1].msg
+    assert gps.flags == 0 and 0 < gps.eph < 10.0 and gps.id == 0
+    assert odo.frame_id == 1 and odo.child_frame_id == 12
+    dist = math.hypot(odo.x, odo.y)
+    assert 15.0 < dist < 30.0  # ~5 m/s for ~4-5 s after the origin
+    assert abs(math.degrees(math.atan2(odo.y, odo.x)) - 30.0) < 2.0  # north, east in NED
+
+
+def test_startup_traffic(drive) -> None:
+    daemon, ap, _, _ = drive
+    assert "GPS1_TYPE" in ap.params_asked
+    assert m_id("RAW_IMU") in ap.commands and m_id("ATTITUDE") in ap.commands
+    hb = ap.of_type("HEARTBEAT")
+    assert hb and hb[0].msg.type == mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+    assert hb[0].msg.get_srcSystem() == 1 and hb[0].msg.get_srcComponent() == 191
+    assert 3 <= len(hb) <= 7
+    texts = [r.msg.text for r in ap.of_type("STATUSTEXT")]
+    assert any("origin" in t for t in texts)
+    assert daemon.clockmap.source == "timesync"
+    assert abs(daemon.clockmap.offset - (ap.boot_s - ap.t_start)) < 0.02
+
+
+def test_fixes_went_through_worker(drive) -> None:
+    daemon, _, log_dir, _ = drive
+    s = daemon.summary()
+    assert s["queries"] >= 1
+    assert s["fixes"].get("accepted", 0) >= 1, s
+    assert s["imu_samples"] > 300
+    events = [json.loads(line) for line in (log_dir / "events.jsonl").read_text().splitlines()]
+    kinds = [e["event"] for e in events]
+    assert kinds[0] == "start" and kinds[-1] == "stop" and "origin" in kinds
+    fix = next(e for e in events if e["event"] == "fix" and e.get("accepted"))
+    assert len(fix["results"]) == 5 and fix["gate"] == "accepted"
+    assert fix["arrival_t"] - fix["capture_t"] >= 0.25  # the 0.3 s artificial latency: a delayed fix
+
+
+def test_tlog_reads_back(drive) -> None:
+    _, _, log_dir, _ = drive
+    mlog = mavutil.mavlink_connection(str(log_dir / "mav.tlog"), dialect="ardupilotmega")
+    counts: dict[str, int] = {}
+    stamps = []
+    while (msg := mlog.recv_msg()) is not None:
+        counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+        stamps.append(msg._timestamp)
+    assert counts.get("RAW_IMU", 0) > 300 and counts.get("GPS_INPUT", 0) >= 20
+    assert abs(stamps[-1] - time.time()) < 60
+
+
+def m_id(name: str) -> int:
+    return getattr(mavutil.mavlink, f"MAVLINK_MSG_ID_{name}")
+
+
+def test_sigint_exits_clean(tmp_path: Path) -> None:
+    port = free_udp_port()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "taco_mav.cli", "run", "--profile",
+                             str(Path(__file__).resolve().parents[1] / "vehicle_profiles" / "ardupilot_rover.yaml"),
+                             "--connect", f"udpin:127.0.0.1:{port}", "--origin", "49.0,8.4,115",
+                             "--log-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not (tmp_path / "events.jsonl").exists():
+            time.sleep(0.1)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        rc = proc.wait(15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out = proc.stdout.read().decode()
+    assert rc == 0, out
+    kinds = [json.loads(line)["event"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert kinds[:2] == ["origin", "start"] and kinds[-1] == "stop"  # --origin is set before start
