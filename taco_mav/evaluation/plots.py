@@ -16,6 +16,8 @@ from taco_mav.evaluation.runner import DriveRun  # noqa: E402
 
 log = logging.getLogger(__name__)
 
+SERIES = (("imu_only", "b-", "IMU only"), ("online", "r-", "TACO (UKF)"), ("smoothed", "m--", "TACO smoothed"))
+
 
 def _mosaic_background(ax, run: DriveRun, margin_m: float = 60.0) -> None:
     """Draw the satellite mosaic under the trajectory (ENU metres rel. origin), if the run had one."""
@@ -71,7 +73,7 @@ def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> lis
 
     dist = cumulative_distance(run.truth_xy) / 1000.0
     fig, ax = plt.subplots(figsize=(8, 4))
-    for key, style, label in (("imu_only", "b-", "IMU only"), ("online", "r-", "TACO (UKF)"), ("smoothed", "m--", "TACO smoothed")):
+    for key, style, label in SERIES:
         if key in errors:
             ax.plot(dist, errors[key], style, lw=1, label=label)
     ax.set_yscale("symlog", linthresh=1.0)
@@ -84,7 +86,7 @@ def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> lis
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(5, 4))
-    for key, style, label in (("imu_only", "b-", "IMU only"), ("online", "r-", "TACO (UKF)"), ("smoothed", "m--", "TACO smoothed")):
+    for key, style, label in SERIES:
         if key in errors:
             e = np.sort(errors[key])
             ax.plot(e, np.arange(1, len(e) + 1) / len(e), style, label=label)
