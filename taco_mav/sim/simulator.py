@@ -1,0 +1,342 @@
+"""`Simulator`: an ArduPilot rover played from a drive over MAVLink, scoring the GPS_INPUT it gets back.
+
+Streams (sysid/compid 1/1, ardupilotmega, MAVLink 2), stamped on the simulated autopilot clock (`SimClock`,
+seconds since boot; drive time 0 plays at `play_start`): HEARTBEAT and SYSTEM_TIME at 1 Hz, RAW_IMU,
+ATTITUDE and SIMSTATE at the drive's data rate, GPS_RAW_INT at 5 Hz (a 3D fix until `deny_after_s` of drive
+time, then NO_FIX). SCALED_IMU and HIGHRES_IMU stream once a companion asks with SET_MESSAGE_INTERVAL; asked
+intervals thin the data-rate streams too. Parameters, commands and TIMESYNC are answered by
+`AutopilotServices`; every GPS_INPUT goes through `GpsInputMonitor` (ArduPilot's driver and EKF gates).
+
+Playback waits (sending HEARTBEATs) until the companion's HEARTBEAT is heard, so nothing is played into a
+closed port. With `lockstep` the clock is held and moved sample by sample (each sample is sent before the
+clock reaches its time), at most at `speed`, and never more than `lockstep_lead_s` (0.22 s) past the
+companion's last GPS_INPUT: a companion paced on this clock (`Simulator.clock` injected, as the in-process
+tests and the demo do) then always meets ArduPilot's 245 ms rule and sees the same inputs whatever its load;
+a slower companion stretches wall time instead of missing its rate.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.errors import ConfigError, TacoError  # noqa: E402
+from taco_mav.sim import encode  # noqa: E402
+from taco_mav.sim.clock import SimClock  # noqa: E402
+from taco_mav.sim.gps_mav import GpsInputMonitor  # noqa: E402
+from taco_mav.sim.services import AutopilotServices  # noqa: E402
+from taco_mav.sim.source import SimDrive, open_drive  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SimOptions", "Simulator"]
+
+M = mavutil.mavlink
+DATA_STREAMS = (M.MAVLINK_MSG_ID_RAW_IMU, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_SIMSTATE,
+                M.MAVLINK_MSG_ID_SCALED_IMU, M.MAVLINK_MSG_ID_HIGHRES_IMU)
+# message id -> default interval, s (0 = every data sample, -1 = off until asked for)
+DEFAULT_INTERVALS: dict[int, float] = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0, M.MAVLINK_MSG_ID_GPS_RAW_INT: 0.2,
+    M.MAVLINK_MSG_ID_RAW_IMU: 0.0, M.MAVLINK_MSG_ID_ATTITUDE: 0.0, M.MAVLINK_MSG_ID_SIMSTATE: 0.0,
+    M.MAVLINK_MSG_ID_SCALED_IMU: -1.0, M.MAVLINK_MSG_ID_HIGHRES_IMU: -1.0,
+}
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """speed: real-time factor; deny_after_s: drive seconds of real GNSS (1.0 = the start-up fix only, sent
+    five times in the first second); duration_s: play at most this much of the drive; lockstep: see the module
+    docstring; gps1_type: the GPS1_TYPE parameter reported (14 = MAVLink); wait_companion_s: how long to wait
+    for the companion's HEARTBEAT before playing anyway; drain_s: wall seconds to keep listening after the
+    drive ends; boot_offset_s: autopilot uptime when the simulator starts."""
+
+    speed: float = 1.0
+    deny_after_s: float = 1.0
+    duration_s: float | None = None
+    lockstep: bool = False
+    gps1_type: int = 14
+    sysid: int = 1
+    compid: int = 1
+    wait_companion_s: float = 30.0
+    drain_s: float = 1.0
+    boot_offset_s: float = 5.0
+    lockstep_lead_s: float = 0.22
+    lockstep_timeout_s: float = 5.0
+
+    def check(self) -> None:
+        """ConfigError for values out of range."""
+        if not 0.0 < self.speed <= 100.0:
+            raise ConfigError(f"--speed: {self.speed} is out of range (0 < speed <= 100)")
+        if self.deny_after_s < 0:
+            raise ConfigError(f"--deny-after: {self.deny_after_s} must be >= 0 s")
+        if self.duration_s is not None and self.duration_s <= 0:
+            raise ConfigError(f"--duration: {self.duration_s} must be > 0 s")
+
+
+class Simulator:
+    """Play `drive` (a SimDrive or a drive/world folder) to a companion on `connect` (a pymavlink connection
+    string; e.g. "udpout:127.0.0.1:14550" when the companion listens with udpin).
+
+    start() opens the link and starts the player and receiver threads; stop() ends playback early; join()
+    waits for the end; `results()` then gives the scored results (see score.py)."""
+
+    def __init__(self, drive: SimDrive | Path | str, connect: str, speed: float = 1.0,
+                 options: SimOptions | None = None, **overrides: Any) -> None:
+        base = options or SimOptions()
+        self.options = SimOptions(**{**asdict(base), "speed": speed, **overrides})
+        self.options.check()
+        self.drive = drive if isinstance(drive, SimDrive) else open_drive(Path(drive))
+        self.connect = connect
+        self.clock = SimClock(self.options.speed, self.options.boot_offset_s)
+        self.monitor = GpsInputMonitor()
+        self.statustexts: list[tuple[float, int, str]] = []
+        self.companion: tuple[int, int] | None = None
+        self.play_start: float | None = None
+        self.play_end: float | None = None
+        self.lockstep_timeouts = 0
+        self.sent_counts: dict[str, int] = {}
+        self.error: BaseException | None = None
+        self._conn: Any = None
+        self._services: AutopilotServices | None = None
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._companion_seen = threading.Event()
+        self._gps_event = threading.Condition()
+        self._threads: list[threading.Thread] = []
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Open the connection and start playing (returns at once)."""
+        if self._threads:
+            raise TacoError("simulator already started")
+        try:
+            self._conn = mavutil.mavlink_connection(self.connect, source_system=self.options.sysid,
+                                                    source_component=self.options.compid, dialect="ardupilotmega")
+        except (OSError, ValueError) as exc:
+            raise TacoError(f"--connect {self.connect!r}: cannot open ({exc})") from None
+        self._conn.mav.robust_parsing = True
+        self._services = AutopilotServices(self._conn.mav, self.options.sysid, self.options.compid,
+                                           self.options.gps1_type, frozenset(DEFAULT_INTERVALS))
+        self._threads = [threading.Thread(target=self._guard(self._receive), name="sim-recv", daemon=True),
+                         threading.Thread(target=self._guard(self._play), name="sim-play", daemon=True)]
+        for th in self._threads:
+            th.start()
+        log.info("simulator: playing %s to %s at %gx%s", self.drive.name, self.connect, self.options.speed,
+                 " (lockstep)" if self.options.lockstep else "")
+
+    def stop(self) -> None:
+        """End playback now (results cover what was played)."""
+        self._stop.set()
+
+    def join(self, timeout: float | None = None) -> bool:
+        """Wait for the end of playback and draining; True when finished. Re-raises a thread's error."""
+        finished = self._done.wait(timeout)
+        if finished:
+            self._stop.set()
+            for th in self._threads:
+                th.join(timeout=2.0)
+            if self._conn is not None:
+                self._conn.close()
+                self._conn = None
+        if self.error is not None:
+            raise self.error
+        return finished
+
+    def utc_now(self) -> float:
+        """UTC unix seconds on the drive's calendar now (the clock an in-process companion should use as its
+        wall clock: SYSTEM_TIME and GPS week/ms then agree)."""
+        now = self.clock.now()
+        start = self.play_start if self.play_start is not None else now
+        return self.drive.utc0 + (now - start)
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    @property
+    def services(self) -> AutopilotServices:
+        if self._services is None:
+            raise TacoError("simulator not started")
+        return self._services
+
+    def _guard(self, fn: Any) -> Any:
+        def run() -> None:
+            try:
+                fn()
+            except BaseException as exc:  # noqa: BLE001 - reported by join()
+                log.exception("simulator thread %s failed", threading.current_thread().name)
+                self.error = exc
+                self._stop.set()
+                self._done.set()
+        return run
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, msg: Any) -> None:
+        with self._send_lock:
+            if self._conn is None:
+                return
+            try:
+                self._conn.mav.send(msg)
+            except OSError as exc:  # companion not there yet (ICMP refused): drop, as a radio would
+                log.debug("send %s failed: %s", msg.get_type(), exc)
+                return
+        kind = msg.get_type()
+        self.sent_counts[kind] = self.sent_counts.get(kind, 0) + 1
+
+    def _interval(self, msg_id: int) -> float:
+        asked = self.services.intervals.get(msg_id)
+        if asked is None or asked == 0.0:
+            return DEFAULT_INTERVALS[msg_id]
+        return asked
+
+    def _wait_companion(self) -> None:
+        deadline = time.monotonic() + self.options.wait_companion_s
+        while not self._stop.is_set() and not self._companion_seen.is_set():
+            self._send(encode.heartbeat(self._conn.mav))
+            if time.monotonic() >= deadline:
+                log.warning("no companion HEARTBEAT within %.0f s: playing anyway", self.options.wait_companion_s)
+                return
+            self._companion_seen.wait(min(0.5, max(0.01, deadline - time.monotonic())))
+
+    def _play(self) -> None:
+        self._wait_companion()
+        d, opt, mav = self.drive, self.options, self._conn.mav
+        self.play_start = start = self.clock.now()
+        if opt.lockstep:
+            self.clock.hold()
+        due: dict[int, float] = {k: start for k in DEFAULT_INTERVALS}
+        end_t = d.t[-1] if opt.duration_s is None else min(d.t[-1], d.t[0] + opt.duration_s)
+        for i in range(len(d)):
+            if self._stop.is_set() or d.t[i] > end_t:
+                break
+            T = start + float(d.t[i])
+            if opt.lockstep:
+                self._lockstep_wait(T)
+                self._send_sample(mav, i, T, due)  # data first, then the clock: nothing is "now" unsent
+                self.clock.advance_to(T)
+            else:
+                while not self._stop.is_set() and (w := self.clock.wall_until(T)) > 0:
+                    self._stop.wait(min(w, 0.05))
+                self._send_sample(mav, i, T, due)
+        self.play_end = self.clock.now()
+        if opt.lockstep:
+            self.clock.release()
+        drain_until = time.monotonic() + opt.drain_s
+        while time.monotonic() < drain_until and not self._stop.is_set():
+            self._stop.wait(0.05)
+        self._done.set()
+
+    def _lockstep_wait(self, T: float) -> None:
+        """Lockstep: pace at `speed`, and once the companion produces, never let the clock run more than
+        `lockstep_lead_s` past its last GPS_INPUT (waiting up to `lockstep_timeout_s` wall for the next)."""
+        pace = (T - self.clock.now()) / self.options.speed
+        if pace > 0:
+            self._stop.wait(pace)
+        if not self.monitor.updates:
+            return
+        need = T - self.options.lockstep_lead_s
+        deadline = time.monotonic() + self.options.lockstep_timeout_s
+        with self._gps_event:
+            while self.monitor.updates[-1].t < need and not self._stop.is_set() and time.monotonic() < deadline:
+                # the autopilot clock runs between samples too: let it reach the lead so a companion whose
+                # next output falls between two samples can send it
+                self.clock.advance_to(min(T, self.monitor.updates[-1].t + self.options.lockstep_lead_s))
+                self._gps_event.wait(0.05)
+            if self.monitor.updates[-1].t < need:
+                self.lockstep_timeouts += 1
+                log.debug("lockstep: no GPS_INPUT since %.2f s (clock %.2f s)", self.monitor.updates[-1].t, T)
+
+    def _send_sample(self, mav: Any, i: int, T: float, due: dict[int, float]) -> None:
+        d = self.drive
+        for msg_id in (M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_GPS_RAW_INT,
+                       *DATA_STREAMS):
+            interval = self._interval(msg_id)
+            if interval < 0 or T + 1e-9 < due[msg_id]:
+                continue
+            due[msg_id] = max(due[msg_id] + interval, T) if interval > 0 else T
+            if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
+                msg = encode.heartbeat(mav)
+            elif msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
+                msg = encode.system_time(mav, d.utc0 + float(d.t[i]), T)
+            elif msg_id == M.MAVLINK_MSG_ID_GPS_RAW_INT:
+                msg = encode.gps_raw_int(mav, d, i, T, fix=float(d.t[i]) < self.options.deny_after_s)
+            elif msg_id == M.MAVLINK_MSG_ID_RAW_IMU:
+                msg = encode.raw_imu(mav, d, i, T)
+            elif msg_id == M.MAVLINK_MSG_ID_SCALED_IMU:
+                msg = encode.scaled_imu(mav, d, i, T)
+            elif msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+                msg = encode.highres_imu(mav, d, i, T)
+            elif msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
+                msg = encode.attitude(mav, d, i, T)
+            else:
+                msg = encode.simstate(mav, d, i)
+            self._send(msg)
+
+    # ------------------------------------------------------------------ receiving
+    def _receive(self) -> None:
+        ours = (self.options.sysid, self.options.compid)
+        while not self._stop.is_set() or not self._done.is_set():
+            conn = self._conn
+            if conn is None:
+                return
+            try:
+                msg = conn.recv_match(blocking=True, timeout=0.05)
+            except OSError as exc:
+                log.debug("receive: %s", exc)
+                time.sleep(0.01)
+                continue
+            if msg is None:
+                if self._done.is_set():
+                    return
+                continue
+            if (msg.get_srcSystem(), msg.get_srcComponent()) == ours or msg.get_type() == "BAD_DATA":
+                continue
+            self._dispatch(msg)
+
+    def _dispatch(self, msg: Any) -> None:
+        kind = msg.get_type()
+        now = self.clock.now()
+        if kind == "HEARTBEAT":
+            if self.companion is None:
+                self.companion = (msg.get_srcSystem(), msg.get_srcComponent())
+                log.info("companion %d/%d heard", *self.companion)
+            self._companion_seen.set()
+        elif kind == "GPS_INPUT":
+            if self.play_start is None:
+                return  # before playback: no truth to score against
+            with self._gps_event:
+                self.monitor.handle(msg, now)
+                self._gps_event.notify_all()
+        elif kind == "STATUSTEXT":
+            text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+            self.statustexts.append((now, int(msg.severity), text.rstrip("\x00")))
+            log.info("companion says: %s", text)
+        for reply in self.services.handle(msg, now):
+            self._send(reply)
+
+    # ------------------------------------------------------------------ results
+    def results(self) -> dict[str, Any]:
+        """The results.json document of what was played so far (see score.py for the fields)."""
+        from taco_mav.sim.score import results_document, score_updates
+
+        start = self.play_start if self.play_start is not None else self.clock.now()
+        end = self.play_end if self.play_end is not None else self.clock.now()
+        seq = score_updates(self.drive, self.monitor.updates, start, end)
+        seq.update(self.monitor.summary(end_t=end))
+        seq.update(played_s=max(0.0, end - start), lockstep_timeouts=self.lockstep_timeouts,
+                   statustext=[t for _, _, t in self.statustexts[-20:]],
+                   not_measured=["ate_imu_only_m", "ate_smoothed_m", "steady_rmse_m", "fixes_per_km", "attempts",
+                                 "accepted", "camera_duty_cycle"])
+        config = {"simulator": {**asdict(self.options), "drive": str(self.drive.path), "connect": self.connect},
+                  "params_set": self.services.param_sets if self._services else [],
+                  "messages_sent": dict(self.sent_counts)}
+        return results_document({self.drive.name: seq}, config)

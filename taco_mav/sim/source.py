@@ -1,0 +1,112 @@
+"""What the simulated autopilot plays: one drive (KITTI raw or a synthetic world) as flat arrays.
+
+Frames and units: `t` (N,) seconds from the drive's first sample; IMU in body FRD (specific force m/s^2 with
+gravity, gyro rad/s) and NED roll/pitch/yaw radians, exactly as the dataset readers give them (the IMU yaw
+is the true, geographic heading, with the dataset's own noise). The GNSS reading (`lat`, `lon` degrees WGS84,
+`alt` m, `vn`, `ve` m/s) comes from the OXTS packets. The true pose for SIMSTATE (`true_lat`, `true_lon`,
+`true_yaw_ned` radians, 0 = north, CW) comes from the ground truth: for a synthetic world the generator's
+exact truth (its OXTS attitude carries IMU noise), for KITTI the OXTS solution itself. `utc0` is the UTC unix
+time of the first sample, seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from taco_mav.datasets.base import GroundTruth
+from taco_mav.datasets.kitti import OXTS, KittiDrive, load_drive
+from taco_mav.errors import DataError
+from taco_mav.geo import UtmProjector, wrap_angle
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SimDrive", "open_drive"]
+
+
+@dataclass(frozen=True, eq=False)
+class SimDrive:
+    """A drive ready to be played (see the module docstring for frames and units)."""
+
+    name: str
+    path: Path
+    t: np.ndarray
+    accel_frd: np.ndarray
+    gyro_frd: np.ndarray
+    rpy_ned: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    alt: np.ndarray
+    vn: np.ndarray
+    ve: np.ndarray
+    true_lat: np.ndarray
+    true_lon: np.ndarray
+    true_yaw_ned: np.ndarray
+    truth: GroundTruth
+    origin_utm: np.ndarray
+    utm_epsg: int
+    utc0: float
+    world_dir: Path | None = None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def duration_s(self) -> float:
+        """Time span of the drive, seconds."""
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+    @property
+    def data_rate_hz(self) -> float:
+        """Median IMU sample rate, Hz."""
+        return float(1.0 / np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
+
+    def index_at(self, t: float) -> int:
+        """Index of the last sample at or before time t (clamped to the drive)."""
+        return int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1))
+
+
+def _from_kitti(kd: KittiDrive, truth: GroundTruth, origin_utm: np.ndarray, world_dir: Path | None) -> SimDrive:
+    ox = kd.oxts
+    proj = UtmProjector(kd.utm_epsg)
+    e = origin_utm[0] + np.interp(kd.imu.t, truth.t, truth.xy[:, 0])
+    n = origin_utm[1] + np.interp(kd.imu.t, truth.t, truth.xy[:, 1])
+    true_lat, true_lon = proj.to_latlon(e, n)
+    conv = np.asarray(proj.grid_convergence(true_lat, true_lon), dtype=float)
+    heading_grid = np.interp(kd.imu.t, truth.t, np.unwrap(truth.heading))
+    true_yaw_ned = wrap_angle(math.pi / 2.0 - (heading_grid - conv))
+    return SimDrive(
+        name=kd.name, path=kd.path, t=kd.imu.t - kd.imu.t[0], accel_frd=kd.imu.accel_frd, gyro_frd=kd.imu.gyro_frd,
+        rpy_ned=kd.imu.rpy_ned, lat=ox[:, OXTS["lat"]], lon=ox[:, OXTS["lon"]], alt=ox[:, OXTS["alt"]],
+        vn=ox[:, OXTS["vn"]], ve=ox[:, OXTS["ve"]], true_lat=np.atleast_1d(true_lat), true_lon=np.atleast_1d(true_lon),
+        true_yaw_ned=np.atleast_1d(true_yaw_ned), truth=truth, origin_utm=np.asarray(origin_utm, dtype=float),
+        utm_epsg=kd.utm_epsg, utc0=float(kd.t0_unix), world_dir=world_dir)
+
+
+def open_drive(path: Path) -> SimDrive:
+    """Open a KITTI raw drive folder (`..._sync` with `oxts/`) or a synthetic world folder (`world.json`).
+
+    Raises DataError (naming the path) when it is neither or its files are malformed.
+    """
+    path = Path(path)
+    if (path / "world.json").is_file():
+        from taco_mav.datasets.synthetic import load_world
+
+        world = load_world(path)
+        drive = _from_kitti(world.kitti, world.truth, world.origin_utm, path)
+    elif (path / "oxts").is_dir():
+        kd = load_drive(path)
+        drive = _from_kitti(kd, kd.truth, kd.origin_utm, None)
+    else:
+        raise DataError(f"{path}: neither a KITTI raw drive folder (oxts/) nor a synthetic world (world.json)")
+    if len(drive) < 2:
+        raise DataError(f"{path}: the drive has {len(drive)} samples; at least 2 are needed to play it")
+    if np.any(np.diff(drive.t) <= 0):
+        raise DataError(f"{path}: sample times are not strictly increasing")
+    log.info("sim drive %s: %d samples at %.0f Hz over %.1f s, %.2f km", drive.name, len(drive),
+             drive.data_rate_hz, drive.duration_s, drive.truth.length_m() / 1000.0)
+    return drive

@@ -1,0 +1,81 @@
+"""Helpers for the simulator tests: a free loopback UDP port and a minimal companion that echoes the
+simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock."""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from typing import Any, Callable
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.geo import gps_week_ms  # noqa: E402
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class EchoCompanion:
+    """Listens on udpin:127.0.0.1:port, answers with HEARTBEATs, asks for GPS1_TYPE, SET_MESSAGE_INTERVAL
+    and TIMESYNC once, and sends GPS_INPUT every `period_s` of `clock` (the simulator's clock) at the last
+    SIMSTATE position plus `offset_deg` (lat, lon degrees)."""
+
+    def __init__(self, port: int, clock: Callable[[], float], period_s: float = 0.2, gps_id: int = 0,
+                 offset_deg: tuple[float, float] = (0.0, 0.0), h_acc: float = 1.0) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=191,
+                                               dialect="ardupilotmega")
+        self.clock, self.period_s, self.gps_id = clock, period_s, gps_id
+        self.offset_deg, self.h_acc = offset_deg, h_acc
+        self.received: dict[str, list[Any]] = {}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> "EchoCompanion":
+        self.thread.start()
+        return self
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=2.0)
+        self.conn.close()
+
+    def _run(self) -> None:
+        mav = self.conn.mav
+        asked = False
+        next_out = None
+        utc = None
+        while not self.stop.is_set():
+            msg = self.conn.recv_match(blocking=True, timeout=0.002)
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                self.received.setdefault(msg.get_type(), []).append(msg)
+                if msg.get_type() == "SYSTEM_TIME":
+                    utc = (msg.time_unix_usec * 1e-6, msg.time_boot_ms * 1e-3)
+                if not asked and msg.get_type() == "HEARTBEAT":
+                    asked = True
+                    mav.heartbeat_send(18, 8, 0, 0, 4)  # MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID
+                    mav.param_request_read_send(1, 1, b"GPS1_TYPE", -1)
+                    mav.command_long_send(1, 1, 511, 0, mavutil.mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 100000,
+                                          0, 0, 0, 0, 0)
+                    mav.command_long_send(1, 1, 511, 0, 99999, 100000, 0, 0, 0, 0, 0)
+                    mav.timesync_send(0, 123456789)
+            states = self.received.get("SIMSTATE")
+            if not states:
+                continue
+            now = self.clock()
+            if next_out is None:
+                next_out = now
+            if now >= next_out:
+                next_out += self.period_s
+                s = states[-1]
+                week, ms = gps_week_ms(utc[0] + now - utc[1]) if utc else (0, 0)
+                mav.gps_input_send(0, self.gps_id, 0, ms, week, 3,
+                                   s.lat + int(round(self.offset_deg[0] * 1e7)),
+                                   s.lng + int(round(self.offset_deg[1] * 1e7)), 100.0, 0.8, 0.8, 0.0, 0.0, 0.0,
+                                   0.3, self.h_acc, 1.0, 10, 0)
