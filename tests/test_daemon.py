@@ -78,7 +78,7 @@ def test_gps_input_fields_and_position(drive) -> None:
     assert all(0.0 < r.msg.horiz_accuracy < 10.0 and r.msg.fix_type == 3 for r in got[2:])
     assert min(r.msg.horiz_accuracy for r in got) < 2.0
     assert msg.hdop == pytest.approx(max(msg.horiz_accuracy / 2.0, 0.5), rel=1e-5)
-    assert msg.ignore_flags == (32 | 128 | 4)
+    assert msg.ignore_flags == (16 | 128 | 4)  # VEL_VERT | VERTICAL_ACCURACY | VDOP
     assert abs(msg.yaw - 3000) <= 30  # 30 deg true
     assert abs(math.hypot(msg.vn, msg.ve) - 5.0) < 0.2
     assert abs(math.degrees(math.atan2(msg.ve, msg.vn)) - 30.0) < 1.0

@@ -23,17 +23,24 @@ from taco_mav.config import OutputConfig
 from taco_mav.core.types import Estimate
 from taco_mav.geo import UtmProjector, gps_week_ms, utm_epsg_for
 
-GPS_FIX_NONE = 1  # GPS_FIX_TYPE_NO_FIX
-GPS_FIX_3D = 3
-IGNORE_VD = 32  # GPS_INPUT_IGNORE_FLAG_VEL_VERT
-IGNORE_VACC = 128  # GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
-IGNORE_VDOP = 4  # GPS_INPUT_IGNORE_FLAG_VDOP
-GPS_INPUT_IGNORE = IGNORE_VD | IGNORE_VACC | IGNORE_VDOP
-GLOBAL_POSITION_SRC_ESTIMATOR = 6
+
+def mavlink_dialect() -> Any:
+    """The ardupilotmega MAVLink 2 dialect module (constants and message classes)."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega
+
+_m = mavlink_dialect()
+GPS_FIX_NONE = _m.GPS_FIX_TYPE_NO_FIX  # 1
+GPS_FIX_3D = _m.GPS_FIX_TYPE_3D_FIX  # 3
+# Fields we do not provide: vertical velocity, vertical accuracy, VDOP.
+GPS_INPUT_IGNORE = (_m.GPS_INPUT_IGNORE_FLAG_VEL_VERT | _m.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
+                    | _m.GPS_INPUT_IGNORE_FLAG_VDOP)
+GLOBAL_POSITION_SRC_ESTIMATOR = 6  # GLOBAL_POSITION_SRC (common.xml; not exported as a constant by every pymavlink)
 GLOBAL_POSITION_UNHEALTHY = 1
-MAV_FRAME_LOCAL_NED = 1
-MAV_FRAME_BODY_FRD = 12
-MAV_ESTIMATOR_TYPE_VIO = 2
+MAV_FRAME_LOCAL_NED = _m.MAV_FRAME_LOCAL_NED
+MAV_FRAME_BODY_FRD = _m.MAV_FRAME_BODY_FRD
+MAV_ESTIMATOR_TYPE_VIO = _m.MAV_ESTIMATOR_TYPE_VIO
 
 
 @dataclass(frozen=True)

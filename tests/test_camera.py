@@ -1,0 +1,103 @@
+"""Camera sources: image folder (KITTI image_02 layout), OpenCV VideoCapture on a video file, world: rendering."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import rasterio
+from rasterio.transform import Affine
+
+from taco_mav.camera import ClockDomain, FolderSource, VideoSource, WorldSource, open_camera
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import CameraConfig
+from taco_mav.errors import ConfigError
+from taco_mav.geo import UtmProjector
+
+CAM = GroundCamera.from_config(CameraConfig(), scale=0.25)
+
+
+def _folder(tmp_path: Path, n: int = 5) -> Path:
+    d = tmp_path / "image_02"
+    (d / "data").mkdir(parents=True)
+    lines = []
+    for i in range(n):
+        img = np.full((20, 30, 3), i * 40, np.uint8)
+        img[..., 2] = 255  # red in BGR order on disk
+        cv2.imwrite(str(d / "data" / f"{i:010d}.png"), img)
+        lines.append(f"2011-09-26 13:02:{25 + i * 0.1:012.9f}")
+    (d / "timestamps.txt").write_text("\n".join(lines) + "\n")
+    return tmp_path
+
+
+def test_folder_source_times_and_rgb(tmp_path: Path) -> None:
+    src = open_camera(f"folder:{_folder(tmp_path)}@100.0", CAM)
+    assert isinstance(src, FolderSource) and src.clock is ClockDomain.AUTOPILOT
+    assert src.times == pytest.approx([100.0, 100.1, 100.2, 100.3, 100.4])
+    t, img = src.frame_near(100.23, 0.05)
+    assert t == pytest.approx(100.2) and img.shape == (20, 30, 3)
+    assert img[0, 0, 0] == 255 and img[0, 0, 2] == 80  # RGB: red channel first; frame 2 grey level 80
+    assert src.frame_near(101.0, 0.05) is None
+
+
+def test_folder_source_bad(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError):
+        FolderSource(tmp_path)
+
+
+def test_video_source_file(tmp_path: Path) -> None:
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 50.0, (32, 24))
+    if not writer.isOpened():
+        pytest.skip("OpenCV build cannot write MJPG")
+    for i in range(20):
+        writer.write(np.full((24, 32, 3), (0, 0, 10 * i), np.uint8))
+    writer.release()
+    src = open_camera(str(path), CAM)
+    assert isinstance(src, VideoSource) and src.clock is ClockDomain.COMPANION
+    t0 = time.monotonic()
+    src.start()
+    deadline = t0 + 5.0
+    while src.grabbed < 20 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    src.close()
+    assert src.grabbed == 20
+    elapsed_grab = time.monotonic() - t0
+    assert elapsed_grab >= 0.3  # paced at the file's 50 fps: 20 frames take ~0.4 s
+    got = src.frame_near(time.monotonic(), 10.0)
+    assert got is not None and got[1].shape == (24, 32, 3)
+    assert got[1][0, 0, 0] > 150  # the last frame is the reddest, RGB order
+
+
+def test_video_source_unopenable() -> None:
+    with pytest.raises(ConfigError):
+        VideoSource("/nonexistent/clip.avi").start()
+
+
+def test_world_source_renders_at_pose(tmp_path: Path) -> None:
+    proj = UtmProjector.for_latlon(49.0, 8.4)
+    e0, n0 = proj.to_utm(49.0, 8.4)
+    rng = np.random.default_rng(0)
+    size, res = 800, 0.25
+    tex = cv2.resize(rng.integers(0, 255, (100, 100, 3), dtype=np.uint8), (size, size), interpolation=cv2.INTER_NEAREST)
+    tf = Affine(res, 0.0, e0 - size * res / 2, 0.0, -res, n0 + size * res / 2)
+    with rasterio.open(tmp_path / "map.tif", "w", driver="GTiff", width=size, height=size, count=3, dtype="uint8",
+                       crs=f"EPSG:{proj.epsg}", transform=tf) as ds:
+        ds.write(np.transpose(tex, (2, 0, 1)))
+    (tmp_path / "world.json").write_text(json.dumps({"mosaic": "map.tif"}))
+    src = open_camera(f"world:{tmp_path}", CAM)
+    assert isinstance(src, WorldSource) and src.needs_pose and src.mosaic_path == (tmp_path / "map.tif").resolve()
+    assert src.frame_near(1.0, 0.1) is None
+    src.feed_pose(10.0, 49.0, 8.4, 0.0)
+    src.feed_pose(10.1, 49.0, 8.4, math.pi / 2)
+    t, north = src.frame_near(10.02, 0.05)
+    assert t == 10.0 and north.shape == (CAM.height, CAM.width, 3)
+    t2, east = src.frame_near(10.09, 0.05)
+    assert t2 == 10.1 and np.abs(north.astype(int) - east.astype(int)).mean() > 10  # different view
+    src.feed_pose(2.0, 49.0, 8.4, 0.0)  # clock went back (reboot): history cleared
+    assert src.frame_near(10.0, 0.05) is None

@@ -1,0 +1,63 @@
+"""Connection strings, the tlog format (read back by pymavlink), and a Link round trip over UDP on 127.0.0.1."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.errors import ConfigError  # noqa: E402
+from taco_mav.link.connection import Link, parse_connection  # noqa: E402
+from taco_mav.link.requests import ekf3_gate_warnings  # noqa: E402
+from mav_autopilot import free_udp_port  # noqa: E402
+
+
+def test_parse_connection() -> None:
+    assert parse_connection("udpin:0.0.0.0:14550", 57600) == ("udpin:0.0.0.0:14550", 57600)
+    assert parse_connection("tcp:127.0.0.1:5760", 57600) == ("tcp:127.0.0.1:5760", 57600)
+    assert parse_connection("/dev/ttyAMA0:921600", 57600) == ("/dev/ttyAMA0", 921600)
+    assert parse_connection("/dev/ttyACM0,115200", 57600) == ("/dev/ttyACM0", 115200)
+    assert parse_connection("/dev/ttyUSB0", 57600) == ("/dev/ttyUSB0", 57600)
+    with pytest.raises(ConfigError):
+        parse_connection("udpin:14550", 57600)
+    with pytest.raises(ConfigError):
+        parse_connection(" ", 57600)
+
+
+def test_link_udp_roundtrip_and_tlog(tmp_path: Path) -> None:
+    port = free_udp_port()
+    link = Link(f"udpin:127.0.0.1:{port}", sysid=0, compid=191, tlog=tmp_path / "t.tlog", wall_clock=lambda: 1.7e9)
+    peer = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=7, source_component=1,
+                                      dialect="ardupilotmega")
+    try:
+        peer.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GROUND_ROVER, mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                0, 0, 4)
+        got = []
+        deadline = time.monotonic() + 3
+        while not got and time.monotonic() < deadline:
+            got = link.recv(0.1)
+        assert got[0].get_type() == "HEARTBEAT"
+        assert link.adopt_autopilot(got[0]) and link.target_system == 7 and link.mav.srcSystem == 7
+        link.heartbeat()
+        back = peer.recv_match(type="HEARTBEAT", blocking=True, timeout=3)
+        assert back.get_srcSystem() == 7 and back.get_srcComponent() == 191
+        assert back.type == mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+    finally:
+        link.close()
+        peer.close()
+    log = mavutil.mavlink_connection(str(tmp_path / "t.tlog"), dialect="ardupilotmega")
+    a, b = log.recv_msg(), log.recv_msg()
+    assert (a.get_srcSystem(), b.get_srcSystem()) == (7, 7)
+    assert a._timestamp == pytest.approx(1.7e9) and b.get_srcComponent() == 191
+    assert log.recv_msg() is None
+
+
+def test_ekf3_gate_warnings() -> None:
+    assert ekf3_gate_warnings(10, 2.0, 0.5) == []
+    w = ekf3_gate_warnings(5, 1.0, 3.0)
+    assert len(w) == 3 and "satellites_visible=5" in w[0]

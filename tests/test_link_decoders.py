@@ -1,0 +1,85 @@
+"""Input decoders: scaling (mG, mrad/s, degE7, cm/s, cdeg), FRD frames, validation and rejection counts.
+Messages are encoded and parsed by pymavlink so the field types are the wire's."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
+
+from taco_mav.link.decoders import G0, Decoders  # noqa: E402
+
+
+def wire(build):
+    tx = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    return mavlink.MAVLink(None).parse_buffer(bytes(build(tx).pack(tx)))[0]
+
+
+def test_raw_imu_level_at_rest() -> None:
+    d = Decoders()
+    r = d.imu(wire(lambda m: m.raw_imu_encode(12_345_678, 10, -20, -1000, 100, -200, 300, 0, 0, 0)))
+    assert r.t == pytest.approx(12.345678)
+    assert r.accel_frd == pytest.approx((10 * G0 / 1000, -20 * G0 / 1000, -9.80665))
+    assert r.gyro_frd == pytest.approx((0.1, -0.2, 0.3))
+    assert r.source == "RAW_IMU"
+
+
+@pytest.mark.parametrize("kind", ["scaled_imu", "scaled_imu2", "scaled_imu3"])
+def test_scaled_imu_time_boot_ms(kind: str) -> None:
+    d = Decoders()
+    r = d.imu(wire(lambda m: getattr(m, f"{kind}_encode")(4_500, 0, 0, -1000, 0, 0, -50, 0, 0, 0)))
+    assert r.t == pytest.approx(4.5) and r.accel_frd[2] == pytest.approx(-G0) and r.gyro_frd[2] == pytest.approx(-0.05)
+
+
+def test_highres_imu_si() -> None:
+    d = Decoders()
+    r = d.imu(wire(lambda m: m.highres_imu_encode(2_000_000, 0.5, 0.0, -9.8, 0.01, 0.02, 0.03, 0, 0, 0, 0, 0, 0, 0,
+                                                  0x3F)))
+    assert r.t == pytest.approx(2.0) and r.accel_frd == pytest.approx((0.5, 0.0, -9.8))
+    assert r.gyro_frd == pytest.approx((0.01, 0.02, 0.03))
+    partial = d.imu(wire(lambda m: m.highres_imu_encode(2_000_000, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x07)))
+    assert partial is None and d.rejected["HIGHRES_IMU:partial"] == 1
+
+
+def test_imu_rejections_counted() -> None:
+    d = Decoders()
+    assert d.imu(wire(lambda m: m.highres_imu_encode(1_000_000, float("nan"), 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))) is None
+    assert d.imu(wire(lambda m: m.raw_imu_encode(1_000, 0, 0, -20000, 0, 0, 0, 0, 0, 0))) is None  # 20 g
+    assert d.imu(wire(lambda m: m.highres_imu_encode(1_000, 0, 0, -9.8, 0, 0, 40.0, 0, 0, 0, 0, 0, 0, 0, 0))) is None
+    assert d.imu(wire(lambda m: m.raw_imu_encode(0, 0, 0, -1000, 0, 0, 0, 0, 0, 0))) is None
+    assert d.imu(wire(lambda m: m.raw_imu_encode(1_000, 0, 0, 0, 0, 0, 0, 0, 0, 0))) is None
+    assert dict(d.rejected) == {"HIGHRES_IMU:nonfinite": 1, "RAW_IMU:accel_range": 1, "HIGHRES_IMU:gyro_range": 1,
+                                "RAW_IMU:no_time": 1, "RAW_IMU:all_zero": 1}
+
+
+def test_attitude_ned() -> None:
+    d = Decoders()
+    a = d.attitude(wire(lambda m: m.attitude_encode(1500, 0.1, -0.2, 3.5, 0, 0, 0)))
+    assert a.t == pytest.approx(1.5) and a.roll == pytest.approx(0.1) and a.pitch == pytest.approx(-0.2)
+    assert a.yaw == pytest.approx(3.5 - 2 * math.pi)  # wrapped to [-pi, pi]
+    assert d.attitude(wire(lambda m: m.attitude_encode(1500, float("nan"), 0, 0, 0, 0, 0))) is None
+    assert d.attitude(wire(lambda m: m.attitude_encode(1500, 0, 2.0, 0, 0, 0, 0))) is None
+    assert dict(d.rejected) == {"ATTITUDE:nonfinite": 1, "ATTITUDE:range": 1}
+
+
+def test_gps_raw_int_scaling() -> None:
+    d = Decoders()
+    g = d.gnss(wire(lambda m: m.gps_raw_int_encode(7_000_000, 3, 490_123_456, 84_567_890, 115_250, 80, 120, 523, 9050, 12)))
+    assert g.lat == pytest.approx(49.0123456) and g.lon == pytest.approx(8.456789) and g.alt == pytest.approx(115.25)
+    assert g.speed == pytest.approx(5.23) and g.course_ned == pytest.approx(math.radians(90.5))
+    assert g.t == pytest.approx(7.0) and g.satellites == 12
+    unknown = d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 4, 1, 1, 0, 0, 0, 65535, 65535, 9)))
+    assert unknown.speed == 0.0 and unknown.course_ned is None
+    assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 2, 490_000_000, 84_000_000, 0, 0, 0, 0, 0, 5))) is None
+    assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 0, 0, 0, 0, 0, 0, 0, 5))) is None
+    assert dict(d.rejected) == {"GPS_RAW_INT:no_3d_fix": 1, "GPS_RAW_INT:position_range": 1}
+
+
+def test_simstate_pose() -> None:
+    d = Decoders()
+    p = d.simstate(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, -353632610, 1491652300)))
+    assert p.lat == pytest.approx(-35.363261) and p.lon == pytest.approx(149.16523) and p.yaw == pytest.approx(0.5)
