@@ -50,6 +50,8 @@ class MiniAutopilot:
     boot_s: float = 100.0
     gps1_type: int = 14
     send_simstate: bool = True
+    stall: tuple[float, float] | None = None  # (from, to) elapsed s: no IMU/ATTITUDE (inputs stall)
+    reboot_at: float | None = None  # elapsed s: the autopilot clock restarts at 1 s (a reboot)
     received: list[Received] = field(default_factory=list)
     params_asked: list[str] = field(default_factory=list)
     commands: list[int] = field(default_factory=list)
@@ -74,6 +76,12 @@ class MiniAutopilot:
         lat, lon = self.proj.to_latlon(self.e0 + d * math.cos(theta_grid), self.n0 + d * math.sin(theta_grid))
         return float(lat), float(lon)
 
+    def ap_time(self, el: float) -> float:
+        """Autopilot clock, s, at `el` seconds after start (restarts at 1 s on a reboot)."""
+        if self.reboot_at is not None and el >= self.reboot_at:
+            return 1.0 + el - self.reboot_at
+        return self.boot_s + el
+
     def start(self) -> None:
         self._thread.start()
 
@@ -89,7 +97,8 @@ class MiniAutopilot:
         next_hb = next_st = 0.0
         while not self._stop.is_set():
             el = time.monotonic() - self.t_start
-            t_ap = self.boot_s + el
+            t_ap = self.ap_time(el)
+            stalled = self.stall is not None and self.stall[0] <= el < self.stall[1]
             if el >= next_hb:
                 mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
                 next_hb += 1.0
@@ -101,11 +110,12 @@ class MiniAutopilot:
                                          80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12)
                 next_st += 0.25 if el < 1.0 else 1.0
             while k_att / self.att_hz <= el:
-                mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)
+                if not stalled:
+                    mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)
                 k_att += 1
             while k_imu / self.imu_hz <= el:
-                t_s = self.boot_s + k_imu / self.imu_hz
-                mav.raw_imu_send(int(t_s * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
+                if not stalled:
+                    mav.raw_imu_send(int(self.ap_time(k_imu / self.imu_hz) * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
                 k_imu += 1
             if self.send_simstate and k_sim / 10.0 <= el:
                 lat, lon = self.truth_latlon(el)
@@ -132,7 +142,7 @@ class MiniAutopilot:
                 self.commands.append(int(msg.param1))
                 mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)
             elif kind == "TIMESYNC" and msg.tc1 == 0:
-                mav.timesync_send(int((self.boot_s + time.monotonic() - self.t_start) * 1e9), msg.ts1)
+                mav.timesync_send(int(self.ap_time(time.monotonic() - self.t_start) * 1e9), msg.ts1)
 
     def of_type(self, kind: str) -> list[Received]:
         return [r for r in self.received if r.msg.get_type() == kind]

@@ -22,6 +22,7 @@ SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.emulator",
     "taco_mav.bench.kitti_load",
     "taco_mav.bench.classical",
+    "taco_mav.bench.daemon",
 )
 
 

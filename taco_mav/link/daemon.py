@@ -380,6 +380,7 @@ class Daemon:
         self.events.write("reboot", t_last=t_last, t_new=t_new)
         self._status(SEV_WARNING, text, key=None)
         self.clockmap.reset()
+        self._truth.clear()
         if self.loc is not None and self.attitude is not None:
             est = self.loc.estimate()
             self._make_localiser(t_new, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,

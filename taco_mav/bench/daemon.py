@@ -1,0 +1,107 @@
+"""Bench section `daemon`: the live path over loopback UDP.
+
+A small autopilot player in this process (pymavlink, 127.0.0.1) streams HEARTBEAT, one GPS_RAW_INT start fix,
+RAW_IMU at 100 Hz and ATTITUDE at 50 Hz of a straight 5 m/s drive for `DURATION_S`; the daemon runs in a thread
+with the default output (GPS_INPUT at 5 Hz) and the emulator matcher fed by SIMSTATE. Keys:
+- daemon_imu_to_estimate_p99_ms: per IMU message, the daemon's receive (socket read) -> Localiser updated, p99;
+- gps_input_interval_p99_ms / _mean_ms / _std_ms / _max_dev_ms: intervals between GPS_INPUT arrivals at the
+  player (ideal 200 ms), max_dev = the largest |interval - 200 ms|.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import socket
+import threading
+import time
+
+import numpy as np
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from taco_mav.config import profile_from_dict  # noqa: E402
+from taco_mav.link.daemon import Daemon, DaemonOptions  # noqa: E402
+
+log = logging.getLogger(__name__)
+DURATION_S = 15.0
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _play(port: int, duration: float, arrivals: list[float]) -> None:
+    m = mavutil.mavlink
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1,
+                                      dialect="ardupilotmega")
+    mav = conn.mav
+    start = time.monotonic()
+    k_imu = k_att = k_sim = k_hb = 0
+    yaw = math.radians(30.0)
+    lat0, lon0 = 49.0, 8.4
+    while (el := time.monotonic() - start) < duration:
+        t_ap = 100.0 + el
+        if k_hb <= el:
+            mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
+            if el < 2.0:
+                mav.gps_raw_int_send(int(t_ap * 1e6), 3, int(lat0 * 1e7), int(lon0 * 1e7), 115000, 80, 120, 500,
+                                     3000, 12)
+            k_hb += 1
+        while k_imu / 100.0 <= el:
+            mav.raw_imu_send(int((100.0 + k_imu / 100.0) * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
+            k_imu += 1
+        while k_att / 50.0 <= el:
+            mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, yaw, 0.0, 0.0, 0.0)
+            k_att += 1
+        if k_sim / 10.0 <= el:
+            d = 5.0 * el
+            lat = lat0 + d * math.cos(yaw) / 111_200.0
+            lon = lon0 + d * math.sin(yaw) / (111_200.0 * math.cos(math.radians(lat0)))
+            mav.simstate_send(0.0, 0.0, yaw, 0, 0, -9.8, 0, 0, 0, int(lat * 1e7), int(lon * 1e7))
+            k_sim += 1
+        while (msg := conn.recv_msg()) is not None:
+            kind = msg.get_type()
+            if kind == "GPS_INPUT":
+                arrivals.append(time.monotonic())
+            elif kind == "COMMAND_LONG":
+                mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)
+            elif kind == "PARAM_REQUEST_READ" and msg.param_id == "GPS1_TYPE":
+                mav.param_value_send(b"GPS1_TYPE", 14.0, m.MAV_PARAM_TYPE_INT8, 900, 1)
+            elif kind == "TIMESYNC" and msg.tc1 == 0:
+                mav.timesync_send(int((100.0 + time.monotonic() - start) * 1e9), msg.ts1)
+        time.sleep(0.001)
+    conn.close()
+
+
+def run(progress: bool = True) -> dict[str, float]:
+    port = _free_port()
+    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    daemon.start()
+    time.sleep(0.2)
+    arrivals: list[float] = []
+    player = threading.Thread(target=_play, args=(port, DURATION_S, arrivals), daemon=True)
+    player.start()
+    player.join(DURATION_S + 10.0)
+    daemon.stop()
+    daemon.join(10.0)
+    lat_ms = np.array(daemon.stats.imu_to_estimate_s) * 1e3
+    gaps_ms = np.diff(np.array(arrivals[2:])) * 1e3  # skip the first two (start-up)
+    if len(lat_ms) < 100 or len(gaps_ms) < 10:
+        log.warning("daemon bench: too little traffic (%d IMU, %d GPS_INPUT)", len(lat_ms), len(gaps_ms))
+        return {}
+    out = {
+        "daemon_imu_to_estimate_p99_ms": round(float(np.percentile(lat_ms, 99)), 3),
+        "daemon_imu_to_estimate_median_ms": round(float(np.median(lat_ms)), 3),
+        "gps_input_interval_p99_ms": round(float(np.percentile(gaps_ms, 99)), 2),
+        "gps_input_interval_mean_ms": round(float(gaps_ms.mean()), 2),
+        "gps_input_interval_std_ms": round(float(gaps_ms.std()), 2),
+        "gps_input_interval_max_dev_ms": round(float(np.abs(gaps_ms - 200.0).max()), 2),
+    }
+    log.info("daemon bench: %s (%d IMU samples, %d GPS_INPUT, fixes %s)", out, len(lat_ms), len(arrivals),
+             dict(daemon.stats.fixes))
+    return out
