@@ -79,7 +79,7 @@ def test_gps_input_rate_rules() -> None:
     assert s["gps_input_interval_max_ms"] == pytest.approx(250.0)
 
 
-@pytest.mark.parametrize("kwargs", [dict(sats=5), dict(hdop=2.6), dict(hacc=5.1), dict(fix=2), dict(flags=1)])
+@pytest.mark.parametrize("kwargs", [dict(sats=5), dict(hdop=2.6), dict(hacc=5.1), dict(fix=2), dict(flags=2)])
 def test_ekf_gates_refuse(kwargs: dict) -> None:
     mon = GpsInputMonitor()
     for k in range(80):

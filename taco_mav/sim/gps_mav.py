@@ -34,9 +34,9 @@ GATE_HDOP_MAX = 2.5
 GATE_HACC_MAX_M = 5.0
 GATE_SACC_MAX_MPS = 1.0
 GATE_HOLD_S = 10.0
-IGNORE_HDOP = 1
-IGNORE_SPEED_ACCURACY = 8
-IGNORE_HORIZONTAL_ACCURACY = 16
+IGNORE_HDOP = 2  # GPS_INPUT_IGNORE_FLAG_HDOP
+IGNORE_SPEED_ACCURACY = 32  # GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY
+IGNORE_HORIZONTAL_ACCURACY = 64  # GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
 UNKNOWN_HDOP = 99.99
 
 
@@ -140,19 +140,23 @@ class GpsInputMonitor:
         """Autopilot time at which EKF3's 10 s of passing checks completed, s (None: never)."""
         return self._ekf_ready_at
 
-    def summary(self, end_t: float | None = None) -> dict[str, Any]:
-        """Rate and gate figures (results.json keys). end_t: the end of the run on the autopilot clock; a
-        silence longer than 4 s before it counts as a GPS timeout."""
-        n = len(self.updates)
-        t = np.array([u.t for u in self.updates])
+    def summary(self, end_t: float | None = None, start_t: float | None = None) -> dict[str, Any]:
+        """Rate and gate figures (results.json keys) over the updates that arrived between start_t and end_t
+        (autopilot clock, s; None: unbounded). A silence longer than 4 s before end_t is a GPS timeout. The
+        health and EKF figures come from the driver model run over every update."""
+        lo = -math.inf if start_t is None else start_t
+        hi = math.inf if end_t is None else end_t
+        updates = [u for u in self.updates if lo <= u.t <= hi]
+        n = len(updates)
+        t = np.array([u.t for u in updates])
         gaps_ms = np.diff(t) * 1e3 if n > 1 else np.zeros(0)
         fix_counts: dict[str, int] = {}
-        for u in self.updates:
+        for u in updates:
             fix_counts[str(u.fix_type)] = fix_counts.get(str(u.fix_type), 0) + 1
         timeout = bool(n == 0 or (end_t is not None and end_t - t[-1] > TIMEOUT_S)
                        or (gaps_ms.size and gaps_ms.max() > TIMEOUT_S * 1e3))
-        gate_pass = float(np.mean([u.gates_ok for u in self.updates])) if n else 0.0
-        s_acc = [u.s_acc for u in self.updates if u.s_acc is not None]
+        gate_pass = float(np.mean([u.gates_ok for u in updates])) if n else 0.0
+        s_acc = [u.s_acc for u in updates if u.s_acc is not None]
         out: dict[str, Any] = {
             "gps_input_count": n,
             "gps_input_dropped_wrong_id": self.dropped_wrong_id,
@@ -171,7 +175,8 @@ class GpsInputMonitor:
             "ekf_gates_ok": bool(self._ekf_ready_at is not None and not timeout),
             "speed_accuracy_max_mps": float(max(s_acc)) if s_acc else None,
             "ekf_speed_accuracy_ok": bool(not s_acc or max(s_acc) <= GATE_SACC_MAX_MPS),
-            "horiz_accuracy_p50_m": float(np.median([u.h_acc for u in self.updates if u.h_acc is not None]))
-            if any(u.h_acc is not None for u in self.updates) else None,
+            "horiz_accuracy_p50_m": float(np.median([u.h_acc for u in updates if u.h_acc is not None]))
+            if any(u.h_acc is not None for u in updates) else None,
+            "hdop_p50": float(np.median([u.hdop for u in updates])) if n else None,
         }
         return out

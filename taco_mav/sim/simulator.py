@@ -331,7 +331,7 @@ class Simulator:
         start = self.play_start if self.play_start is not None else self.clock.now()
         end = self.play_end if self.play_end is not None else self.clock.now()
         seq = score_updates(self.drive, self.monitor.updates, start, end)
-        seq.update(self.monitor.summary(end_t=end))
+        seq.update(self.monitor.summary(end_t=end, start_t=start))
         seq.update(played_s=max(0.0, end - start), lockstep_timeouts=self.lockstep_timeouts,
                    statustext=[t for _, _, t in self.statustexts[-20:]],
                    not_measured=["ate_imu_only_m", "ate_smoothed_m", "steady_rmse_m", "fixes_per_km", "attempts",
