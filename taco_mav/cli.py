@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Sequence
 
 from taco_mav.errors import TacoError
 
@@ -84,12 +84,54 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return run_daemon(profile, opts)
 
 
-def _not_yet(issue: int) -> Callable[[argparse.Namespace], int]:
-    def run(args: argparse.Namespace) -> int:
-        print(f"taco-mav {args.command}: not yet implemented (tracked in issue {issue})", file=sys.stderr)
-        return 2
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from taco_mav.sim import simulate
 
-    return run
+    doc = simulate(Path(args.drive), args.connect, Path(args.out), args.speed, deny_after_s=args.deny_after,
+                   lockstep=args.lockstep, duration_s=args.duration, gps1_type=args.gps1_type,
+                   wait_companion_s=args.wait)
+    for name, seq in doc["sequences"].items():
+        print(_sim_table(name, seq))
+    print(f"wrote {Path(args.out) / 'results.json'}")
+    return 0
+
+
+def _fmt(value: object, spec: str) -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+def _sim_table(name: str, seq: dict) -> str:
+    """The simulator's figures for one drive as an aligned text table."""
+    rows = [
+        ("drive", name),
+        ("ATE (first-pose aligned)", f"{_fmt(seq.get('ate_m'), '.2f')} m"),
+        ("ATE (UTM, unaligned)", f"{_fmt(seq.get('ate_unaligned_m'), '.2f')} m"),
+        ("length", f"{_fmt(seq.get('length_km'), '.3f')} km"),
+        ("ATE per km", f"{_fmt(seq.get('ate_m_per_km'), '.2f')} m/km"),
+        ("GPS_INPUT received", f"{seq.get('gps_input_count', 0)} (fix types {seq.get('fix_type_counts', {})})"),
+        ("GPS_INPUT rate", f"{_fmt(seq.get('gps_input_rate_hz'), '.2f')} Hz"),
+        ("interval p50 / p99 / max", f"{_fmt(seq.get('gps_input_interval_p50_ms'), '.0f')} / "
+                                     f"{_fmt(seq.get('gps_input_interval_p99_ms'), '.0f')} / "
+                                     f"{_fmt(seq.get('gps_input_interval_max_ms'), '.0f')} ms"),
+        ("two gaps > 245 ms in a row", str(seq.get("consecutive_gaps_over_245ms"))),
+        ("EKF3 gates (10 s)", f"{'ok' if seq.get('ekf_gates_ok') else 'NOT met'} "
+                              f"(pass {_fmt(seq.get('ekf_gate_pass_fraction'), '.0%')}, HDOP p50 "
+                              f"{_fmt(seq.get('hdop_p50'), '.2f')})"),
+    ]
+    return "\n".join(f"{k:28s} {v}" for k, v in rows)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from taco_mav.demo import run_demo
+
+    res = run_demo(Path(args.out), progress=not args.quiet, speed=args.speed)
+    print(_sim_table(res.drive, res.results))
+    fixes = res.daemon.get("fixes", {})
+    print(f"{'CVGL fixes accepted':28s} {fixes.get('accepted', 0)} of {sum(fixes.values())} answered")
+    print(f"{'wall time':28s} {res.wall_s:.0f} s")
+    print(f"results:    {res.results_path}")
+    print(f"trajectory: {res.plot_path}")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,10 +183,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--matcher-latency", type=float, default=0.0, help="artificial matcher delay, s (tests)")
     p.set_defaults(func=_cmd_run)
 
-    for name, issue in (("sim", 6), ("demo", 6)):
-        p = sub.add_parser(name, parents=[common], help=f"(issue {issue})")
-        p.add_argument("rest", nargs=argparse.REMAINDER)
-        p.set_defaults(func=_not_yet(issue))
+    p = sub.add_parser("sim", parents=[common], help="autopilot simulator: play a drive as an ArduPilot rover over MAVLink")
+    p.add_argument("--drive", required=True, help="KITTI raw drive folder (..._sync) or synthetic world folder")
+    p.add_argument("--connect", required=True, help="pymavlink connection to the companion, e.g. udpout:127.0.0.1:14550")
+    p.add_argument("--out", required=True, help="folder for results.json")
+    p.add_argument("--speed", type=float, default=1.0, help="real-time factor (default 1)")
+    p.add_argument("--deny-after", type=float, help="seconds of real GNSS before NO_FIX (default: the start-up fix, 1 s)")
+    p.add_argument("--lockstep", action="store_true", help="never run more than 0.22 s ahead of the companion's GPS_INPUT")
+    p.add_argument("--duration", type=float, help="play at most this many seconds of the drive")
+    p.add_argument("--gps1-type", type=int, default=14, help="GPS1_TYPE reported to the companion (default 14)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the companion's HEARTBEAT")
+    p.set_defaults(func=_cmd_sim)
+
+    p = sub.add_parser("demo", parents=[common], help="synthetic world + simulator + daemon on loopback, one command")
+    p.add_argument("--out", default="taco_demo", help="output folder (default ./taco_demo; the world is reused)")
+    p.add_argument("--speed", type=float, default=8.0, help="real-time factor (default 8)")
+    p.set_defaults(func=_cmd_demo)
     return parser
 
 

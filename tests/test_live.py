@@ -100,3 +100,16 @@ def test_live_latency_independence(kitti_root: Path, tmp_path: Path) -> None:
     assert statistics.median(_fix_delays(tmp_path / "a")) < 0.1
     assert abs(late["ate_m"] - base["ate_m"]) < 0.5
     assert late["consecutive_gaps_over_245ms"] == 0 and base["consecutive_gaps_over_245ms"] == 0
+
+
+def test_demo_short(tmp_path: Path) -> None:
+    """`run_demo` end to end on its built-in world, cut to 20 s of the drive: files written, rate kept."""
+    from taco_mav.demo import DEMO_SEED, run_demo
+
+    res = run_demo(tmp_path, progress=False, duration_s=20.0)
+    assert res.plot_path.is_file() and res.plot_path.stat().st_size > 10_000
+    doc = json.loads(res.results_path.read_text())
+    assert doc["config"]["simulator"]["lockstep"] is True
+    assert json.loads((res.world_dir / "world.json").read_text())["seed"] == DEMO_SEED
+    assert_autopilot_accepts_rate(res.results)
+    assert res.results["ate_m"] < 3.0

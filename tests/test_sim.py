@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -196,3 +197,29 @@ def test_live_kitti_drive(kitti_root: Path, tmp_path: Path) -> None:
     st = comp.received["SYSTEM_TIME"][0]
     assert st.time_unix_usec == pytest.approx(d.utc0 * 1e6, abs=2e5)
     assert comp.received["SIMSTATE"][0].lat == round(d.true_lat[0] * 1e7)
+
+
+def test_cli_sim_writes_results(kitti_root: Path, tmp_path: Path) -> None:
+    """`taco-mav sim` end to end (companion on its own wall clock): results.json holds the contract keys."""
+    from taco_mav.cli import main
+
+    drive_dir = kitti_root.joinpath(*DRIVE_0005)
+    if not drive_dir.is_dir():
+        pytest.skip(f"{drive_dir} absent")
+    port = free_udp_port()
+    comp = EchoCompanion(port, clock=lambda: time.monotonic() * 10.0).start()
+    try:
+        rc = main(["sim", "-q", "--drive", str(drive_dir), "--connect", f"udpout:127.0.0.1:{port}", "--out",
+                   str(tmp_path), "--speed", "10", "--duration", "6", "--wait", "5"])
+    finally:
+        comp.close()
+    assert rc == 0
+    doc = json.loads((tmp_path / "results.json").read_text())
+    seq = doc["sequences"]["2011_09_26_drive_0005"]
+    for key in ("ate_m", "length_km", "ate_m_per_km", "gps_input_rate_hz", "gps_input_interval_p50_ms",
+                "gps_input_interval_p99_ms", "gps_input_interval_max_ms", "consecutive_gaps_over_245ms",
+                "fix_type_counts", "ekf_gates_ok"):
+        assert key in seq
+    assert seq["ate_m"] < 2.0 and seq["gps_input_count"] >= 25
+    assert doc["summary"]["median_ate_m"] == pytest.approx(seq["ate_m"])
+    assert doc["config"]["simulator"]["speed"] == 10.0

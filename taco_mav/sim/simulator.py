@@ -319,7 +319,7 @@ class Simulator:
         elif kind == "STATUSTEXT":
             text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
             self.statustexts.append((now, int(msg.severity), text.rstrip("\x00")))
-            log.info("companion says: %s", text)
+            log.debug("companion says: %s", text)
         for reply in self.services.handle(msg, now):
             self._send(reply)
 
