@@ -1,9 +1,10 @@
 """The daemon loop (`taco-mav run`): MAVLink IMU/attitude in, TACO Localiser, CVGL fixes from a worker thread,
 GPS-style position out at a steady rate.
 
-Threads: the loop thread owns the Link and the Localiser (every Localiser call happens here); the matcher worker
-only runs FixService.answer and posts results to a queue; a VideoCapture camera grabs in its own thread. Time:
-the filter runs on the autopilot clock (IMU timestamps); `ClockMap` maps the companion clock onto it.
+Threads: the loop thread owns the Link and the Localiser (every Localiser call happens here); the fix pipeline
+(`fixes.FixPipeline`: camera, map, matcher worker) runs FixService.answer in the worker thread and posts results
+to a queue; a VideoCapture camera grabs in its own thread. Time: the filter runs on the autopilot clock (IMU
+timestamps); `ClockMap` maps the companion clock onto it.
 
     d = Daemon(profile, DaemonOptions(connect="udpin:127.0.0.1:14550", log_dir=Path("run1")))
     d.start(); ...; d.stop(); d.join()          # or d.run() in the calling thread (the CLI)
@@ -24,22 +25,19 @@ from typing import Any, Callable
 
 import numpy as np
 
-from taco_mav.camera import CameraSource, ClockDomain, WorldSource, open_camera
-from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.types import FixQuery, ImuSample
-from taco_mav.cvgl.base import GroundFrame
+from taco_mav.core.types import ImuSample
 from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
 from taco_mav.link.connection import Link
 from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
 from taco_mav.link.eventlog import EventLog
+from taco_mav.link.fixes import FixPipeline
 from taco_mav.link.health import Health
 from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
 from taco_mav.link.timesync import ClockMap
-from taco_mav.link.worker import MatchWorker, WorkResult
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +99,7 @@ class Daemon:
         self.decoders = Decoders()
         self.clockmap = ClockMap(clock)
         self.health = Health(profile.output.degrade_accuracy_m, profile.output.recover_accuracy_m, profile.output.stall_s)
-        self.ground_camera = GroundCamera.from_config(profile.camera)
+        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status)
         self.loc: Localiser | None = None
         self.origin: encoders.Origin | None = None
         self._start_speed, self._start_course = 0.0, None  # m/s, NED rad
@@ -109,9 +107,7 @@ class Daemon:
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.last_imu: ImuReading | None = None
         self._last_imu_clock = -math.inf
-        self._generation = 0
-        self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
-        self._simstate_ll: deque[tuple[float, float, float, float]] = deque(maxlen=3000)
+        self._generation = 0  # Localiser generation: +1 at each (re-)anchoring; older fixes are dropped
         self._last_status: dict[str, float] = {}
         self._thread: threading.Thread | None = None
         self.exit_code: int | None = None
@@ -139,29 +135,10 @@ class Daemon:
 
             (log_dir / "config.yaml").write_text(yaml.safe_dump(profile_to_dict(p), sort_keys=False))
         self.events = EventLog(log_dir / "events.jsonl" if log_dir else None)
-        self.camera: CameraSource | None = open_camera(opt.camera, self.ground_camera) if opt.camera else None
-        map_path = opt.map_path or (self.camera.mosaic_path if isinstance(self.camera, WorldSource) else None)
-        self.sat_map = None
-        if map_path is not None:
-            from taco_mav.cvgl.satellite import SatelliteMap
-
-            self.sat_map = SatelliteMap(map_path, min_valid=p.map.min_valid_fraction, in_memory_max_mb=p.map.in_memory_max_mb)
-        self.matcher = None
-        if p.matcher == "emulator":
-            log.warning("matcher 'emulator' draws fixes from the SIMSTATE true pose: simulation only")
-        if p.matcher == "emulator" or self.sat_map is not None:
-            from taco_mav.cvgl.registry import make_matcher
-
-            self.matcher = make_matcher(p, truth=self._truth_at if p.matcher == "emulator" else None)
-        else:
-            log.warning("no satellite map (--map): no CVGL fixes, dead reckoning only")
-        if self.matcher is not None and self.camera is None and p.matcher != "emulator":
-            log.warning("no camera (--camera): no CVGL fixes, dead reckoning only")
-        self.worker: MatchWorker | None = None
+        self.fixes.open(self.events)
         self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
                          tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock)
-        if self.camera is not None:
-            self.camera.start()
+        self.fixes.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
         rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0}
@@ -198,20 +175,13 @@ class Daemon:
     def _shutdown(self) -> None:
         if self.link is not None and self.link.target_system:
             self._status(SEV_NOTICE, "stopping", key=None)
-        for name in ("worker", "camera"):
-            obj = getattr(self, name, None)
-            if obj is not None:
-                try:
-                    obj.stop() if name == "worker" else obj.close()
-                except Exception:  # noqa: BLE001 - shutdown continues whatever failed
-                    log.exception("stopping %s", name)
+        self.fixes.stop()
         if getattr(self, "events", None) is not None:
             self.events.write("stop", stats=self.summary())
             self.events.close()
         if self.link is not None:
             self.link.close()
-        if getattr(self, "sat_map", None) is not None:
-            self.sat_map.close()
+        self.fixes.close()
         log.info("stopped: %s", self.summary())
 
     # ------------------------------------------------------------------ loop
@@ -228,8 +198,8 @@ class Daemon:
             except Exception:  # noqa: BLE001 - one bad message must never stop the loop
                 log.exception("handling %s", msg.get_type())
                 self.stats.dropped["handler_error"] += 1
-        self._drain_fixes()
-        self._poll_query()
+        self.fixes.drain(self.loc, self._generation)
+        self.fixes.poll(self.loc, self._generation)
         self._periodic(self.clock())
 
     def _periodic(self, now: float) -> None:
@@ -324,20 +294,7 @@ class Daemon:
         pose = self.decoders.simstate(msg)
         if pose is None or self.last_imu is None:
             return
-        t = self.last_imu.t
-        if isinstance(self.camera, WorldSource):
-            self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)
-        if self.origin is not None:
-            e, n = self.origin.projector.to_utm(pose.lat, pose.lon)
-            theta = math.pi / 2 - pose.yaw + self.origin.convergence
-            self._truth.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
-
-    def _truth_at(self, t: float) -> tuple[float, float, float]:
-        """SIMSTATE pose nearest autopilot time t: absolute UTM E, N metres and grid heading (emulator only)."""
-        if not self._truth:
-            raise RuntimeError("no SIMSTATE received: the emulator matcher needs the simulator's true pose")
-        best = min(self._truth, key=lambda s: abs(s[0] - t))
-        return best[1], best[2], best[3]
+        self.fixes.on_pose(self.last_imu.t, pose, self.origin)
 
     # ------------------------------------------------------------------ origin, localiser, reboot
     def _set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None, source: str) -> None:
@@ -348,14 +305,7 @@ class Daemon:
         self.events.write("origin", source=source, lat=lat, lon=lon, alt=alt, speed=speed, course_ned=course,
                           epsg=self.origin.projector.epsg, convergence_rad=self.origin.convergence)
         self._status(SEV_INFO, f"origin {lat:.6f},{lon:.6f} ({source})", key=None)
-        self.service = None
-        if self.matcher is not None:
-            from taco_mav.cvgl.service import FixService
-
-            self.service = FixService(self.matcher, self.sat_map, self.origin.utm, self.profile.map.crop_size_px,
-                                      self.profile.map.crop_m_per_px)
-            self.worker = MatchWorker(self.service, self.opt.matcher_latency_s)
-            self.worker.start()
+        self.fixes.on_origin(self.origin)
 
     def _make_localiser(self, t: float, xy: tuple[float, float] = (0.0, 0.0), heading: float | None = None,
                         speed: float | None = None, sigma_xy: float | None = None) -> None:
@@ -380,80 +330,12 @@ class Daemon:
         self.events.write("reboot", t_last=t_last, t_new=t_new)
         self._status(SEV_WARNING, text, key=None)
         self.clockmap.reset()
-        self._truth.clear()
+        self.fixes.clear_truth()
         if self.loc is not None and self.attitude is not None:
             est = self.loc.estimate()
             self._make_localiser(t_new, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
                                  max(est.sigma_h, self.params.initial_sigma_xy_m))
         self.last_imu = None
-
-    # ------------------------------------------------------------------ fixes
-    def _poll_query(self) -> None:
-        if self.loc is None:
-            return
-        q = self.loc.poll_query()
-        if q is None:
-            return
-        self.stats.queries += 1
-        fetch = self._frame_fetcher(q)
-        if self.worker is None or fetch is None:
-            self.loc.cancel_query(q.query_id)
-            self.stats.fixes["no_matcher" if self.worker is None else "no_camera"] += 1
-            return
-        if not self.worker.submit(q, fetch, self._generation):
-            self.loc.cancel_query(q.query_id)
-            self.stats.fixes["worker_busy"] += 1
-
-    def _frame_fetcher(self, q: FixQuery) -> Callable[[], GroundFrame | None] | None:
-        """A callable the worker runs to get the frame nearest the capture time (rendering happens there)."""
-        cam, gap = self.camera, self.opt.frame_max_gap_s
-        if cam is None:
-            if self.profile.matcher != "emulator":
-                return None
-            return lambda: GroundFrame(np.zeros((0, 0, 3), np.uint8), q.capture_t, self.ground_camera)
-        if cam.clock is ClockDomain.AUTOPILOT:
-            t_src, back = q.capture_t, 0.0
-        else:
-            off = self.clockmap.offset
-            if off is None:
-                return None
-            t_src, back = q.capture_t - off, off
-
-        def fetch() -> GroundFrame | None:
-            got = cam.frame_near(t_src, gap)
-            return None if got is None else GroundFrame(got[1], got[0] + back, self.ground_camera)
-
-        return fetch
-
-    def _drain_fixes(self) -> None:
-        if self.worker is None or self.loc is None:
-            return
-        while not self.worker.out.empty():
-            res: WorkResult = self.worker.out.get_nowait()
-            q = res.query
-            if res.generation != self._generation:
-                self.stats.fixes["stale_generation"] += 1
-                continue
-            if res.results is None:
-                self.loc.cancel_query(q.query_id)
-                self.stats.fixes[res.error or "error"] += 1
-                self.events.write("fix", query_id=q.query_id, capture_t=q.capture_t, error=res.error)
-                continue
-            out = self.loc.add_fix(q.query_id, res.results)
-            self.stats.fixes[out.reason] += 1
-            est = self.loc.estimate()
-            self.events.write(
-                "fix", query_id=q.query_id, reason=q.reason, capture_t=q.capture_t, frame_t=res.frame_t,
-                arrival_t=out.arrival_t, epsilon=q.epsilon, heading=q.heading, centre=q.centre,
-                crop_centres=q.crop_centres,
-                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w} for r in res.results],
-                accepted=out.accepted, gate=out.reason, chosen=out.chosen, xy=out.xy, yaw_residual=out.yaw_residual,
-                sigma_fwd=out.sigma_fwd, sigma_lat=out.sigma_lat, nis=out.nis, matcher_s=res.elapsed_s,
-                estimate_xy=est.xy, sigma_h=est.sigma_h)
-            if out.accepted:
-                self._status(SEV_INFO, f"fix accepted w={max(out.weights):.2f} sig {est.sigma_h:.1f}m", key="fix")
-            else:
-                self._status(SEV_NOTICE, f"fix rejected: {out.reason}", key="fix")
 
     # ------------------------------------------------------------------ outputs
     def _send_outputs(self, now: float) -> None:
