@@ -189,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="folder for results.json")
     p.add_argument("--speed", type=float, default=1.0, help="real-time factor (default 1)")
     p.add_argument("--deny-after", type=float, help="seconds of real GNSS before NO_FIX (default: the start-up fix, 1 s)")
-    p.add_argument("--lockstep", action="store_true", help="never run more than 0.22 s ahead of the companion's GPS_INPUT")
+    p.add_argument("--lockstep", action="store_true", help="never run more than 0.2 s (one 5 Hz period) ahead of the companion's GPS_INPUT")
     p.add_argument("--duration", type=float, help="play at most this many seconds of the drive")
     p.add_argument("--gps1-type", type=int, default=14, help="GPS1_TYPE reported to the companion (default 14)")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the companion's HEARTBEAT")

@@ -40,6 +40,15 @@ IGNORE_HORIZONTAL_ACCURACY = 64  # GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
 UNKNOWN_HDOP = 99.99
 
 
+def _pairs_over(gaps_ms: np.ndarray, limit_ms: float) -> int:
+    """How many times a run of gaps over `limit_ms` reached two in a row (AP_GPS's delayed_count == 2)."""
+    count, run = 0, 0
+    for g in gaps_ms:
+        run = run + 1 if g > limit_ms else 0
+        count += run == 2
+    return count
+
+
 @dataclass(frozen=True)
 class GpsUpdate:
     """One GPS_INPUT the driver kept. t: autopilot clock at arrival, s; lat/lon degrees; hdop; h_acc m or None
@@ -76,10 +85,8 @@ class GpsInputMonitor:
     _avg_gap: float = 0.0
     _delayed: int = 0
     _max_delayed: int = 0
-    _gap_pairs_over: int = 0
     _gates_since: float | None = None
     _ekf_ready_at: float | None = None
-    _unhealthy: int = 0
 
     def handle(self, msg: Any, t: float) -> GpsUpdate | None:
         """Process one GPS_INPUT arriving at autopilot time t (s); returns the update, None when dropped."""
@@ -100,14 +107,10 @@ class GpsInputMonitor:
                 self._avg_gap = gap if self._avg_gap <= 0 else 0.98 * self._avg_gap + 0.02 * gap
             if gap > GAP_MAX_S:
                 self._delayed += 1
-                if self._delayed == 2:
-                    self._gap_pairs_over += 1
             else:
                 self._delayed = 0
             self._max_delayed = max(self._max_delayed, self._delayed)
         healthy = len(self.updates) >= 1 and self._delayed < 2 and self._avg_gap < AVG_MAX_S
-        if not healthy and self.updates:
-            self._unhealthy += 1
 
         gates = (fix >= 3 and sats >= GATE_SATS_MIN and hdop <= GATE_HDOP_MAX
                  and (h_acc is None or h_acc <= GATE_HACC_MAX_M) and math.isfinite(msg.lat) and healthy)
@@ -165,9 +168,9 @@ class GpsInputMonitor:
             "gps_input_interval_p99_ms": float(np.percentile(gaps_ms, 99)) if gaps_ms.size else None,
             "gps_input_interval_max_ms": float(gaps_ms.max()) if gaps_ms.size else None,
             "gps_input_interval_avg_ms": float(gaps_ms.mean()) if gaps_ms.size else None,
-            "consecutive_gaps_over_245ms": self._gap_pairs_over,
+            "consecutive_gaps_over_245ms": _pairs_over(gaps_ms, GAP_MAX_S * 1e3),
             "gaps_over_245ms": int((gaps_ms > GAP_MAX_S * 1e3).sum()),
-            "gps_unhealthy_updates": self._unhealthy,
+            "gps_unhealthy_updates": sum(1 for u in updates[1:] if not u.healthy),
             "gps_timeout": timeout,
             "fix_type_counts": fix_counts,
             "ekf_gate_pass_fraction": gate_pass,

@@ -9,7 +9,7 @@ intervals thin the data-rate streams too. Parameters, commands and TIMESYNC are 
 
 Playback waits (sending HEARTBEATs) until the companion's HEARTBEAT is heard, so nothing is played into a
 closed port. With `lockstep` the clock is held and moved sample by sample (each sample is sent before the
-clock reaches its time), at most at `speed`, and never more than `lockstep_lead_s` (0.22 s) past the
+clock reaches its time), at most at `speed`, and never more than `lockstep_lead_s` (one 5 Hz period) past the
 companion's last GPS_INPUT: a companion paced on this clock (`Simulator.clock` injected, as the in-process
 tests and the demo do) then always meets ArduPilot's 245 ms rule and sees the same inputs whatever its load;
 a slower companion stretches wall time instead of missing its rate.
@@ -68,8 +68,9 @@ class SimOptions:
     wait_companion_s: float = 30.0
     drain_s: float = 1.0
     boot_offset_s: float = 5.0
-    lockstep_lead_s: float = 0.22
-    lockstep_timeout_s: float = 5.0
+    # one 5 Hz output period; the microsecond lets a companion whose grid is float-rounded past it still fire
+    lockstep_lead_s: float = 0.200001
+    lockstep_timeout_s: float = 1.0
 
     def check(self) -> None:
         """ConfigError for values out of range."""
@@ -253,6 +254,9 @@ class Simulator:
                 self._gps_event.wait(0.05)
             if self.monitor.updates[-1].t < need:
                 self.lockstep_timeouts += 1
+                if self.lockstep_timeouts == 1:
+                    log.warning("lockstep: the companion sent no GPS_INPUT within %.1f s wall of its due time "
+                                "(does it send at >= 5 Hz on this clock?); going on", self.options.lockstep_timeout_s)
                 log.debug("lockstep: no GPS_INPUT since %.2f s (clock %.2f s)", self.monitor.updates[-1].t, T)
 
     def _send_sample(self, mav: Any, i: int, T: float, due: dict[int, float]) -> None:
