@@ -4,12 +4,13 @@ flushed at least every `flush_s` seconds and on close. numpy values are written 
 from __future__ import annotations
 
 import json
-import threading
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 import numpy as np
+
+from taco_mav.link.appendlog import AppendLog
 
 
 def _plain(value: Any) -> Any:
@@ -26,36 +27,14 @@ def _plain(value: Any) -> Any:
     return value
 
 
-class EventLog:
+class EventLog(AppendLog):
     """Thread-safe JSONL writer; `path` None makes every call a no-op."""
 
     def __init__(self, path: str | Path | None, flush_s: float = 1.0) -> None:
-        self._f: TextIO | None = None
-        if path is not None:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-            self._f = open(path, "a", encoding="utf-8")
-        self._lock = threading.Lock()
-        self._flush_s = flush_s
-        self._last = time.monotonic()
-        self.count = 0
+        super().__init__(path, "t", flush_s)
 
     def write(self, event: str, **fields: Any) -> None:
-        if self._f is None:
+        if not self.enabled:
             return
         line = json.dumps({"t_wall": round(time.time(), 6), "event": event, **_plain(fields)}, allow_nan=False)
-        with self._lock:
-            if self._f is None:
-                return
-            self._f.write(line + "\n")
-            self.count += 1
-            now = time.monotonic()
-            if now - self._last >= self._flush_s:
-                self._f.flush()
-                self._last = now
-
-    def close(self) -> None:
-        with self._lock:
-            if self._f is not None:
-                self._f.flush()
-                self._f.close()
-                self._f = None
+        self.append(line + "\n")
