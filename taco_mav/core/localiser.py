@@ -135,7 +135,7 @@ class Localiser:
             self._frame()
 
     def _frame(self) -> None:
-        theta_start = self.pre._theta0
+        theta_start = self.pre.interval_heading
         inc = self.pre.take_increment()
         tick = _Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
         self._advance(tick, self.pre.x, self.pre.y)
@@ -247,8 +247,9 @@ class Localiser:
         if tick is not None:
             tick.fix = (xy.copy(), R)
             tick.x, tick.P = self.ukf.get_state()
-        self._reset_anchor(self.t)
-        self.pre.reset_position(float(self.ukf.x[0]) + self._partial()[0], float(self.ukf.x[1]) + self._partial()[1])
+        self._reset_anchor()
+        dx, dy = self.pre.interval_displacement
+        self.pre.reset_position(float(self.ukf.x[0]) + dx, float(self.ukf.x[1]) + dy)
         if self.record and tick is not None:
             self._graph_x[tick.node] = tick.x.copy()
         return nis
@@ -260,7 +261,7 @@ class Localiser:
         nis = self.ukf.update_position(xy, R)
         tick.fix = (xy.copy(), R)
         tick.x, tick.P = self.ukf.get_state()
-        self._window = AnchorWindow()
+        self._reset_anchor()  # the replay below re-extends the window and recomputes the terms
         pre_x, pre_y = float(tick.x[0]), float(tick.x[1])
         tick.window, tick.pre_xy = self._window, (pre_x, pre_y)
         later = [h for h in self._history if h.t > tick.t]
@@ -269,20 +270,14 @@ class Localiser:
             pre_x += c * h.inc.d_fwd - s * h.inc.d_left
             pre_y += s * h.inc.d_fwd + c * h.inc.d_left
             self._advance(h, pre_x, pre_y)
-        if not later:
-            self._terms = ErrorTerms(0.0, 0.0, 0.0)
-        dx, dy = self._partial()
+        dx, dy = self.pre.interval_displacement
         self.pre.reset_position(pre_x + dx, pre_y + dy)
         if self.record:
             for h in [tick, *later]:
                 self._graph_x[h.node] = h.x.copy()
         return nis
 
-    def _partial(self) -> tuple[float, float]:
-        """Displacement (ENU metres) integrated since the last frame boundary."""
-        return self.pre._dx, self.pre._dy
-
-    def _reset_anchor(self, t: float) -> None:
+    def _reset_anchor(self) -> None:
         self._window = AnchorWindow()
         self._terms = ErrorTerms(0.0, 0.0, 0.0)
 
@@ -294,7 +289,7 @@ class Localiser:
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         """The current estimate: UKF position at the last frame plus the displacement integrated since."""
-        dx, dy = self._partial()
+        dx, dy = self.pre.interval_displacement
         x = self.ukf.x
         return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), float(self.pre.theta), float(self.pre.speed),
                         self.ukf.P[:2, :2].copy(), self._terms.epsilon, self.t - self._last_fix_t)

@@ -121,6 +121,16 @@ class Preintegrator:
         self.accel_fwd = a
         return dt
 
+    @property
+    def interval_heading(self) -> float:
+        """Compass heading at the start of the open frame interval, ENU rad (the increment's body frame)."""
+        return self._theta0
+
+    @property
+    def interval_displacement(self) -> tuple[float, float]:
+        """Displacement integrated since the start of the open frame interval, ENU metres."""
+        return self._dx, self._dy
+
     def take_increment(self) -> Increment:
         """Close the current frame interval: the increment since the last call, in the start-of-interval body
         frame; starts a new interval."""

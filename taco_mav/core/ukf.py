@@ -16,11 +16,9 @@ import math
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
+from taco_mav.core.preintegration import wrap_angle as _wrap
+
 _EIG_FLOOR = 1e-9
-
-
-def _wrap(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d_theta: float = 0.0) -> np.ndarray:

@@ -40,6 +40,7 @@ from taco_mav.config import EmulatorConfig
 from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.core.types import MatchResult
 from taco_mav.errors import ConfigError
+from taco_mav.geo import wrap_angle as _wrap
 
 TruthFn = Callable[[float], tuple[float, float, float]]
 
@@ -70,10 +71,6 @@ def lognormal_params(median: float, mean: float) -> tuple[float, float]:
     if not (median > 0 and mean >= median):
         raise ConfigError(f"emulator: need mean_error_m >= median_error_m > 0, got median {median}, mean {mean}")
     return math.log(median), math.sqrt(2.0 * math.log(mean / median))
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def frame_rng(seed: int, t: float, index: int) -> np.random.Generator:
