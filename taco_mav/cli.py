@@ -66,6 +66,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from taco_mav.config import Estimator, load_profile
     from taco_mav.link.daemon import DaemonOptions, run_daemon
+    from taco_mav.link.signing import key_file
 
     origin = None
     if args.origin:
@@ -80,7 +81,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     estimator = Estimator(args.estimator) if args.estimator else profile.estimator
     opts = DaemonOptions(connect=args.connect, camera=args.camera, map_path=Path(args.map) if args.map else None,
                          log_dir=Path(args.log_dir) if args.log_dir else None, origin=origin, estimator=estimator,
-                         matcher_latency_s=args.matcher_latency)
+                         matcher_latency_s=args.matcher_latency,
+                         signing_key=key_file(args.signing_key) if args.signing_key else None)
     return run_daemon(profile, opts)
 
 
@@ -181,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--origin", help="LAT,LON[,ALT] start fix instead of the first GPS_RAW_INT")
     p.add_argument("--estimator", choices=("paper", "taco+"), help="estimator mode (default: the profile's)")
     p.add_argument("--matcher-latency", type=float, default=0.0, help="artificial matcher delay, s (tests)")
+    p.add_argument("--signing-key", help="MAVLink 2 signing key file (32 bytes raw or 64 hex digits): sign what we "
+                   "send, ignore unsigned input")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("sim", parents=[common], help="autopilot simulator: play a drive as an ArduPilot rover over MAVLink")

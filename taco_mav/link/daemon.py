@@ -62,6 +62,7 @@ class DaemonOptions:
     estimator: Estimator = Estimator.PAPER
     matcher_latency_s: float = 0.0
     frame_max_gap_s: float = 0.15
+    signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
 
 
 @dataclass
@@ -137,7 +138,8 @@ class Daemon:
         self.events = EventLog(log_dir / "events.jsonl" if log_dir else None)
         self.fixes.open(self.events)
         self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
-                         tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock)
+                         tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock,
+                         signing_key=opt.signing_key, rejected=self.decoders.rejected)
         self.fixes.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
@@ -229,7 +231,11 @@ class Daemon:
                 if link.adopt_autopilot(msg):
                     self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
             return
-        if not link.target_system or msg.get_srcSystem() != link.target_system:
+        if not link.target_system:
+            self.decoders.reject(kind, "before_autopilot")
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != (link.target_system, link.target_component):
+            self.decoders.reject(kind, "foreign_source")  # only the adopted autopilot's messages are acted on
             return
         if kind in IMU_MESSAGES:
             self._on_imu(msg, received)

@@ -78,7 +78,8 @@ class Decoders:
     def __init__(self) -> None:
         self.rejected: Counter[str] = Counter()
 
-    def _reject(self, msg_type: str, reason: str) -> None:
+    def reject(self, msg_type: str, reason: str) -> None:
+        """Count one refused input as "<msg_type>:<reason>"."""
         self.rejected[f"{msg_type}:{reason}"] += 1
 
     def imu(self, msg: Any) -> ImuReading | None:
@@ -87,7 +88,7 @@ class Decoders:
         if kind == "HIGHRES_IMU":
             updated = int(msg.fields_updated)
             if updated and (updated & 0x3F) != 0x3F:
-                self._reject(kind, "partial")
+                self.reject(kind, "partial")
                 return None
             t = msg.time_usec * 1e-6
             acc = (float(msg.xacc), float(msg.yacc), float(msg.zacc))
@@ -101,22 +102,22 @@ class Decoders:
             acc = (msg.xacc * k_acc, msg.yacc * k_acc, msg.zacc * k_acc)
             gyr = (msg.xgyro * k_gyr, msg.ygyro * k_gyr, msg.zgyro * k_gyr)
         else:
-            self._reject(kind, "not_imu")
+            self.reject(kind, "not_imu")
             return None
         if not _finite(t, *acc, *gyr):
-            self._reject(kind, "nonfinite")
+            self.reject(kind, "nonfinite")
             return None
         if t <= 0.0:
-            self._reject(kind, "no_time")
+            self.reject(kind, "no_time")
             return None
         if max(abs(a) for a in acc) > MAX_ACCEL:
-            self._reject(kind, "accel_range")
+            self.reject(kind, "accel_range")
             return None
         if max(abs(g) for g in gyr) > MAX_GYRO:
-            self._reject(kind, "gyro_range")
+            self.reject(kind, "gyro_range")
             return None
         if acc == (0.0, 0.0, 0.0):
-            self._reject(kind, "all_zero")  # an IMU that is not delivering (every axis exactly zero)
+            self.reject(kind, "all_zero")  # an IMU that is not delivering (every axis exactly zero)
             return None
         return ImuReading(t, acc, gyr, kind)
 
@@ -124,10 +125,10 @@ class Decoders:
         """ATTITUDE -> AttitudeReading (NED radians) or None (counted)."""
         r, p, y = float(msg.roll), float(msg.pitch), float(msg.yaw)
         if not _finite(r, p, y):
-            self._reject("ATTITUDE", "nonfinite")
+            self.reject("ATTITUDE", "nonfinite")
             return None
         if abs(r) > math.pi + 1e-3 or abs(p) > math.pi / 2 + 1e-3 or not -math.pi - 1e-3 <= y <= 2 * math.pi + 1e-3:
-            self._reject("ATTITUDE", "range")
+            self.reject("ATTITUDE", "range")
             return None
         return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi))
 
@@ -135,11 +136,11 @@ class Decoders:
         """GPS_RAW_INT with a 3D fix (fix_type >= 3) -> GnssReading, or None (counted) otherwise."""
         kind = msg.get_type()
         if int(msg.fix_type) < 3:
-            self._reject(kind, "no_3d_fix")
+            self.reject(kind, "no_3d_fix")
             return None
         lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lon == 0):
-            self._reject(kind, "position_range")
+            self.reject(kind, "position_range")
             return None
         speed = 0.0 if msg.vel == 65535 else msg.vel * 0.01
         course = None if msg.cog == 65535 else math.radians(msg.cog * 0.01)
@@ -150,6 +151,6 @@ class Decoders:
         """SIMSTATE -> the simulator's true pose, or None (counted)."""
         lat, lon, yaw = msg.lat * 1e-7, msg.lng * 1e-7, float(msg.yaw)
         if not _finite(yaw) or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lng == 0):
-            self._reject("SIMSTATE", "range")
+            self.reject("SIMSTATE", "range")
             return None
         return SimPose(lat, lon, yaw)
