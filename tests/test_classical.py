@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from rasterio.transform import from_origin
 
-from taco_mav.bench.classical import textured_mosaic, write_geotiff
+from taco_mav.bench.classical import confidence_figures, confidence_samples, textured_mosaic, write_geotiff
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import GroundFrame
-from taco_mav.cvgl.classical import ClassicalMatcher
+from taco_mav.cvgl.classical import PSR_LOGISTIC_SCALE, ClassicalMatcher, psr_weight
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
@@ -93,3 +93,29 @@ def test_empty_crop_list_gives_empty_answer(world) -> None:
     renderer, _, matcher = world
     frame = GroundFrame(renderer.render((WEST + 150.0, NORTH - 150.0, 0.0)), 0.0, renderer.camera)
     assert matcher.match(frame, []) == []
+
+
+def test_psr_weight_is_a_logistic_around_the_profile_midpoint() -> None:
+    mid = ClassicalMatcherConfig().psr_at_half_weight
+    assert psr_weight(mid, mid) == pytest.approx(0.5)
+    assert psr_weight(mid + PSR_LOGISTIC_SCALE, mid) == pytest.approx(1.0 / (1.0 + math.exp(-1.0)))
+    ws = [psr_weight(p, mid) for p in np.linspace(0.0, 30.0, 61)]
+    assert all(b >= a for a, b in zip(ws, ws[1:]))  # monotone
+    assert 0.0 < ws[0] < 1e-3 and ws[-1] == pytest.approx(1.0)
+    assert psr_weight(-1e9, mid) > 0.0  # w stays in (0, 1], no overflow
+
+
+def test_chance_peaks_get_low_weight_and_correct_matches_high() -> None:
+    """Crops of a different place (chance peaks) get w < 0.1 on median, correct matches (error < 3 m, crop
+    offsets 0-30 m) w > 0.5 on median; w ranks correct above wrong matches (seed 6: not used to calibrate w)."""
+    samples = confidence_samples(seed=6, trials=40, chance_trials=30)
+    ok = (samples["error_m"] < 3.0) & ~samples["chance"]
+    assert ok.sum() >= 20
+    assert np.median(samples["w"][samples["chance"]]) < 0.1
+    assert np.median(samples["w"][ok]) > 0.5
+    figures = confidence_figures(samples)
+    assert figures["classical_w_auc"] > 0.95
+    assert figures["classical_w_median_chance"] == pytest.approx(np.median(samples["w"][samples["chance"]]))
+    # PSR and w agree: w is the logistic of the recorded PSR
+    mid = ClassicalMatcherConfig().psr_at_half_weight
+    np.testing.assert_allclose(samples["w"], [psr_weight(p, mid) for p in samples["psr"]])

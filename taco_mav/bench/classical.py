@@ -7,7 +7,9 @@ matcher's fix (crop centre + t, rotated to ENU) is compared with the truth. Seed
 
 Keys: classical_ms_per_trigger (five crops), classical_median_error_m_within_10m, classical_capture_radius_m
 (first offset where success, error < 3 m, falls below 50 %), classical_success_vs_offset
-([offset_m, success_rate, median_error_m] for 0..30 m in 2.5 m steps), classical_error_cdf (error quantiles).
+([offset_m, success_rate, median_error_m] for 0..30 m in 2.5 m steps), classical_error_cdf (error quantiles);
+w as a confidence (`confidence_figures`): classical_w_auc, classical_w_median_correct, classical_w_median_chance,
+classical_success_vs_w.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import logging
 import math
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import cv2
 import numpy as np
@@ -34,6 +37,9 @@ from taco_mav.datasets.synthetic.render import GroundRenderer
 log = logging.getLogger(__name__)
 
 SUCCESS_M = 3.0
+WEST, NORTH = 500_000.0, 5_430_000.0  # top-left corner of the synthetic mosaic, UTM metres
+CHANCE_MIN_DIST_M = 150.0  # a crop centred this far from the truth shows a different place
+MARGIN_M = 130.0  # true poses stay this far inside the mosaic, so every crop lies on the map
 
 
 def textured_mosaic(seed: int, size_px: int = 2000, m_per_px: float = 0.2) -> np.ndarray:
@@ -85,6 +91,35 @@ def write_geotiff(path: Path, mosaic: np.ndarray, west: float, north: float, m_p
         ds.write(mosaic.transpose(2, 0, 1))
 
 
+@contextmanager
+def synthetic_world(seed: int, size_px: int = 2500, m_per_px: float = 0.2
+                    ) -> Iterator[tuple[GroundRenderer, SatelliteMap, GroundCamera]]:
+    """A seeded textured mosaic as a temporary GeoTIFF: (renderer of ground frames at true poses, the open
+    SatelliteMap, the KITTI-like ground camera). The mosaic's top-left corner is (WEST, NORTH) UTM metres."""
+    mosaic = textured_mosaic(seed, size_px, m_per_px)
+    cam = GroundCamera.from_config(CameraConfig())
+    renderer = GroundRenderer(mosaic, from_origin(WEST, NORTH, m_per_px, m_per_px), cam, max_range_m=80.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        tif = Path(tmp) / "mosaic.tif"
+        write_geotiff(tif, mosaic, WEST, NORTH, m_per_px)
+        with SatelliteMap(tif) as smap:
+            yield renderer, smap, cam
+
+
+def _random_pose(rng: np.random.Generator, extent_m: float) -> tuple[float, float, float]:
+    """A true pose (E, N UTM metres, theta ENU rad) at least MARGIN_M inside the synthetic mosaic."""
+    E = WEST + rng.uniform(MARGIN_M, extent_m - MARGIN_M)
+    N = NORTH - rng.uniform(MARGIN_M, extent_m - MARGIN_M)
+    return E, N, rng.uniform(-math.pi, math.pi)
+
+
+def _fix_error(crop_centre: np.ndarray, heading: float, t: np.ndarray, true_en: np.ndarray) -> float:
+    """Metres between the fix (crop centre + t, (forward, left) rotated by the crop heading) and the truth."""
+    cs, ss = math.cos(heading), math.sin(heading)
+    fix = crop_centre + t[0] * np.array([cs, ss]) + t[1] * np.array([-ss, cs])
+    return float(np.hypot(*(fix - true_en)))
+
+
 def evaluate(seed: int = 0, trials_per_offset: int = 12, offsets: np.ndarray | None = None,
              cfg: ClassicalMatcherConfig | None = None, progress: bool = False) -> dict[str, Any]:
     """Success and error vs crop offset, and the per-trigger time, on a seeded synthetic world."""
@@ -92,47 +127,35 @@ def evaluate(seed: int = 0, trials_per_offset: int = 12, offsets: np.ndarray | N
     offsets = np.arange(0.0, 30.01, 2.5) if offsets is None else offsets
     rng = np.random.default_rng(seed)
     m_px, size = 0.2, 2500
-    west, north = 500_000.0, 5_430_000.0
-    mosaic = textured_mosaic(seed, size, m_px)
-    cam = GroundCamera.from_config(CameraConfig())
-    renderer = GroundRenderer(mosaic, from_origin(west, north, m_px, m_px), cam, max_range_m=80.0)
-    matcher = ClassicalMatcher(cfg, cam)
     mcfg = MapConfig()
     rows, errors_within_10, all_errors, times = [], [], [], []
-    with tempfile.TemporaryDirectory() as tmp:
-        tif = Path(tmp) / "mosaic.tif"
-        write_geotiff(tif, mosaic, west, north, m_px)
-        with SatelliteMap(tif) as smap:
-            margin = 130.0
-            for off in offsets:
-                errs = []
-                for _ in range(trials_per_offset):
-                    E = west + rng.uniform(margin, size * m_px - margin)
-                    N = north - rng.uniform(margin, size * m_px - margin)
-                    theta = rng.uniform(-math.pi, math.pi)
-                    frame = GroundFrame(renderer.render((E, N, theta)), 0.0, cam)
-                    q_heading = theta + rng.uniform(-1, 1) * math.radians(3.0)
-                    direction = rng.uniform(-math.pi, math.pi)
-                    centre = np.array([E, N]) + off * np.array([math.cos(direction), math.sin(direction)])
-                    # five crops like a trigger: the offset one plus four around it (+-8 m)
-                    cs, ss = math.cos(q_heading), math.sin(q_heading)
-                    centres = [centre + dl for dl in (np.zeros(2), 8 * np.array([cs, ss]), -8 * np.array([cs, ss]),
-                                                      8 * np.array([-ss, cs]), -8 * np.array([ss, -cs]))]
-                    crops = [smap.crop(c, q_heading, mcfg.crop_size_px, mcfg.crop_m_per_px) for c in centres]
-                    t0 = time.perf_counter()
-                    res = matcher.match(frame, crops)
-                    times.append(time.perf_counter() - t0)
-                    r, crop = res[0], crops[0]
-                    fix = crop.centre_utm + r.t[0] * np.array([cs, ss]) + r.t[1] * np.array([-ss, cs])
-                    err = float(np.hypot(*(fix - [E, N])))
-                    errs.append(err)
-                    if off <= 10.0:
-                        errors_within_10.append(err)
-                errs_a = np.array(errs)
-                all_errors.extend(errs)
-                rows.append([float(off), float(np.mean(errs_a < SUCCESS_M)), float(np.median(errs_a))])
-                if progress:
-                    log.info("classical bench: offset %.1f m success %.2f median %.2f m", off, rows[-1][1], rows[-1][2])
+    with synthetic_world(seed, size, m_px) as (renderer, smap, cam):
+        matcher = ClassicalMatcher(cfg, cam)
+        for off in offsets:
+            errs = []
+            for _ in range(trials_per_offset):
+                E, N, theta = _random_pose(rng, size * m_px)
+                frame = GroundFrame(renderer.render((E, N, theta)), 0.0, cam)
+                q_heading = theta + rng.uniform(-1, 1) * math.radians(3.0)
+                direction = rng.uniform(-math.pi, math.pi)
+                centre = np.array([E, N]) + off * np.array([math.cos(direction), math.sin(direction)])
+                # five crops like a trigger: the offset one plus four around it (+-8 m)
+                cs, ss = math.cos(q_heading), math.sin(q_heading)
+                centres = [centre + dl for dl in (np.zeros(2), 8 * np.array([cs, ss]), -8 * np.array([cs, ss]),
+                                                  8 * np.array([-ss, cs]), -8 * np.array([ss, -cs]))]
+                crops = [smap.crop(c, q_heading, mcfg.crop_size_px, mcfg.crop_m_per_px) for c in centres]
+                t0 = time.perf_counter()
+                res = matcher.match(frame, crops)
+                times.append(time.perf_counter() - t0)
+                err = _fix_error(crops[0].centre_utm, q_heading, res[0].t, np.array([E, N]))
+                errs.append(err)
+                if off <= 10.0:
+                    errors_within_10.append(err)
+            errs_a = np.array(errs)
+            all_errors.extend(errs)
+            rows.append([float(off), float(np.mean(errs_a < SUCCESS_M)), float(np.median(errs_a))])
+            if progress:
+                log.info("classical bench: offset %.1f m success %.2f median %.2f m", off, rows[-1][1], rows[-1][2])
     capture = next((r[0] for r in rows if r[1] < 0.5), float(offsets[-1]))
     q = np.linspace(0.0, 1.0, 21)
     return {
@@ -144,7 +167,68 @@ def evaluate(seed: int = 0, trials_per_offset: int = 12, offsets: np.ndarray | N
     }
 
 
+def confidence_samples(seed: int = 1, trials: int = 240, chance_trials: int = 80, max_offset_m: float = 30.0,
+                       cfg: ClassicalMatcherConfig | None = None) -> dict[str, np.ndarray]:
+    """PSR, w and fix error of single-crop matches on a seeded synthetic world.
+
+    `trials` crops are centred at the truth plus a uniform 0..max_offset_m offset in a random direction (query
+    heading within +-3 deg of the truth); `chance_trials` crops come from a different place (centre at least
+    CHANCE_MIN_DIST_M from the truth), so any peak is a chance peak. Returns arrays psr, w, error_m (metres) and
+    chance (bool), in that order of trials.
+    """
+    cfg = cfg or ClassicalMatcherConfig()
+    rng = np.random.default_rng(seed)
+    size, m_px = 2500, 0.2
+    extent = size * m_px
+    mcfg = MapConfig()
+    psr, w, err, chance = [], [], [], []
+    with synthetic_world(seed, size, m_px) as (renderer, smap, cam):
+        matcher = ClassicalMatcher(cfg, cam)
+        for k in range(trials + chance_trials):
+            E, N, theta = _random_pose(rng, extent)
+            frame = GroundFrame(renderer.render((E, N, theta)), 0.0, cam)
+            q_heading = theta + rng.uniform(-1, 1) * math.radians(3.0)
+            is_chance = k >= trials
+            if is_chance:
+                centre = np.array([E, N])
+                while np.hypot(*(centre - [E, N])) < CHANCE_MIN_DIST_M:
+                    centre = np.array(_random_pose(rng, extent)[:2])
+            else:
+                direction = rng.uniform(-math.pi, math.pi)
+                centre = np.array([E, N]) + rng.uniform(0.0, max_offset_m) * np.array([math.cos(direction),
+                                                                                       math.sin(direction)])
+            crop = smap.crop(centre, q_heading, mcfg.crop_size_px, mcfg.crop_m_per_px)
+            (res,) = matcher.match(frame, [crop])
+            psr.append(matcher.last_psr[0])
+            w.append(res.w)
+            err.append(_fix_error(crop.centre_utm, q_heading, res.t, np.array([E, N])))
+            chance.append(is_chance)
+    return {"psr": np.array(psr), "w": np.array(w), "error_m": np.array(err), "chance": np.array(chance)}
+
+
+def confidence_figures(samples: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Bench keys for w as a confidence: ROC AUC of w for correct (error < SUCCESS_M) vs all other matches,
+    median w of correct matches and of chance peaks (crops of a different place), and the observed success rate
+    in w bins ([w_lo, w_hi, n, success_rate])."""
+    w, ok, chance = samples["w"], (samples["error_m"] < SUCCESS_M) & ~samples["chance"], samples["chance"]
+    pos, neg = w[ok], w[~ok]
+    auc = float(np.mean(pos[:, None] > neg[None, :]) + 0.5 * np.mean(pos[:, None] == neg[None, :]))
+    edges = [0.0, 0.1, 0.5, 0.9, 1.0 + 1e-9]
+    bins = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (w >= lo) & (w < hi)
+        bins.append([lo, min(hi, 1.0), int(m.sum()), float(ok[m].mean()) if m.any() else None])
+    return {
+        "classical_w_auc": auc,
+        "classical_w_median_correct": float(np.median(pos)),
+        "classical_w_median_chance": float(np.median(w[chance])),
+        "classical_success_vs_w": bins,
+    }
+
+
 def run(progress: bool = False) -> dict[str, Any]:
     """Bench entry point (see `taco_mav.bench`)."""
     cv2.setNumThreads(1)
-    return evaluate(seed=0, progress=progress)
+    figures = evaluate(seed=0, progress=progress)
+    figures.update(confidence_figures(confidence_samples(seed=5)))  # seed 5: not used to calibrate w
+    return figures
