@@ -137,6 +137,47 @@ class SmootherConfig:
 
 
 @dataclass(frozen=True)
+class PlusConfig:
+    """taco+ (estimator: taco+; issue 7, not in the paper). Defaults were chosen on the synthetic worlds and
+    checked on KITTI 04/05/07/09 (docs/taco_plus.md); every value is per second or per metre travelled."""
+
+    # Process noise from the IMU's error growth (replaces Sec. III-F's sigma_fwd >= 1 m per frame).
+    q_pos_mps: float = field(default=0.02, metadata=_rng(0.0))  # position random walk, m/sqrt(s)
+    q_fwd_per_m: float = field(default=0.01, metadata=_rng(0.0))  # along-track 1-sigma per metre travelled
+    q_lat_per_m: float = field(default=0.01, metadata=_rng(0.0))  # cross-track 1-sigma per metre travelled
+    q_theta_rad: float = field(default=0.002, metadata=_rng(0.0))  # heading random walk, rad/sqrt(s)
+    q_speed_mps: float = field(default=0.2, metadata=_rng(0.0))  # speed-error random walk, (m/s)/sqrt(s)
+    q_bias_mps2: float = field(default=1e-3, metadata=_rng(0.0))  # accel-bias random walk, (m/s^2)/sqrt(s)
+    initial_speed_sigma_mps: float = field(default=0.3, metadata=_rng(0.0, open_lo=True))
+    initial_bias_sigma_mps2: float = field(default=0.05, metadata=_rng(0.0, open_lo=True))
+    # Zero-velocity updates when the IMU says the vehicle stands still.
+    zupt: bool = True
+    zupt_sigma_mps: float = field(default=0.02, metadata=_rng(0.0, open_lo=True))
+    zupt_window_s: float = field(default=1.0, metadata=_rng(0.0, open_lo=True))
+    zupt_gyro_max_rps: float = field(default=0.02, metadata=_rng(0.0))
+    zupt_accel_std_max_mps2: float = field(default=0.05, metadata=_rng(0.0))
+    zupt_speed_max_mps: float = field(default=0.5, metadata=_rng(0.0))
+    # Covariance trigger: a fix when the filter's 1-sigma reaches this (or after trigger_time_s moving).
+    trigger_sigma_m: float = field(default=3.0, metadata=_rng(0.0, open_lo=True))
+    trigger_time_s: float = field(default=10.0, metadata=_rng(0.0, open_lo=True))
+    cross_k: float = field(default=2.0, metadata=_rng(0.0))  # cross arm = clip(k sigma_h, min, max)
+    cross_min_m: float = field(default=1.0, metadata=_rng(0.0))
+    cross_max_m: float = field(default=10.0, metadata=_rng(0.0))
+    # Innovation gate (beside the yaw gate) and consensus over the crops.
+    chi2_gate: float = field(default=13.82, metadata=_rng(0.0, open_lo=True))  # 2 dof, 99.9 %
+    consensus_radius_m: float = field(default=3.0, metadata=_rng(0.0))
+    # Loss of lock and recovery.
+    capture_radius_m: float = field(default=20.0, metadata=_rng(0.0, open_lo=True))  # FG2's, Sec. III-D
+    lost_after: int = field(default=4, metadata=_rng(1))  # consecutive triggers without an accepted fix
+    lost_sigma_min_m: float = field(default=10.0, metadata=_rng(0.0))
+    grid_spacing_m: float = field(default=15.0, metadata=_rng(0.0, open_lo=True))
+    grid_max_rings: int = field(default=4, metadata=_rng(1, 10))
+    recover_interval_s: float = field(default=0.5, metadata=_rng(0.0))  # also the least spacing of triggers
+    recover_w_min: float = field(default=0.5, metadata=_rng(0.0, 1.0))
+    confirm_fixes: int = field(default=3, metadata=_rng(0))
+
+
+@dataclass(frozen=True)
 class LatencyConfig:
     """Delayed fixes (not in the paper: it applies fixes as if current)."""
 
@@ -298,6 +339,7 @@ class Profile:
     gate: GateConfig = GateConfig()
     ukf: UkfConfig = UkfConfig()
     smoother: SmootherConfig = SmootherConfig()
+    plus: PlusConfig = PlusConfig()
     latency: LatencyConfig = LatencyConfig()
     camera: CameraConfig = CameraConfig()
     map: MapConfig = MapConfig()
@@ -439,6 +481,7 @@ def profile_to_dict(obj: Any) -> Any:
 def localiser_params(profile: Profile) -> "LocaliserParams":
     """The plain values the core Localiser takes, from a profile (core never sees the Profile itself)."""
     from taco_mav.core.params import LocaliserParams
+    from taco_mav.core.plus import PlusParams
     from taco_mav.core.smoother import SmootherParams
 
     imu, em, tr, gate, ukf, sm, lat = (profile.imu, profile.error_model, profile.trigger, profile.gate,
@@ -465,4 +508,6 @@ def localiser_params(profile: Profile) -> "LocaliserParams":
             lc_min_path_ratio=sm.lc_min_path_ratio, lc_sigma_floor_m=sm.lc_sigma_floor_m,
             lm_max_iterations=sm.lm_max_iterations, lm_relative_tolerance=sm.lm_relative_tolerance,
             savgol_window=sm.savgol_window, savgol_order=sm.savgol_order),
+        plus=(PlusParams(**{f.name: getattr(profile.plus, f.name) for f in dataclasses.fields(PlusConfig)})
+              if profile.estimator is Estimator.TACO_PLUS else None),
     )

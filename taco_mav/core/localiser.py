@@ -49,6 +49,8 @@ class _Tick:
     pre_xy: tuple[float, float] = (0.0, 0.0)
     terms: ErrorTerms = ErrorTerms(0.0, 0.0, 0.0)
     fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
+    stationary: bool = False  # taco+: zero-velocity update at this frame
+    dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
 
 
 @dataclass(frozen=True)
@@ -138,11 +140,13 @@ class Localiser:
         theta_start = self.pre.interval_heading
         inc = self.pre.take_increment()
         tick = _Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
+        self._open_tick(tick)
         self._advance(tick, self.pre.x, self.pre.y)
         self._nodes += 1
         self._history.append(tick)
+        self._close_tick(tick)
         if self.record:
-            self._graph_x.append(tick.x.copy())
+            self._graph_x.append(tick.x[:3].copy())
             self._graph_inc.append((inc.d_fwd, inc.d_left, inc.d_theta))
             s_f, s_l = process_sigmas(tick.terms.epsilon, self.p.sigma_fwd_min_m, self.p.sigma_fwd_k,
                                       self.p.sigma_lat_min_m, self.p.sigma_lat_k)
@@ -157,15 +161,30 @@ class Localiser:
         d_div = math.hypot(self.ukf.x[0] - pre_x, self.ukf.x[1] - pre_y)
         p = self.p
         terms = error_terms(self._window, d_div, p.gyro_arw, p.error_cross_k, p.error_along_k, p.error_divergence_k)
-        s_f, s_l = process_sigmas(terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
-        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
-        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
+        self._predict(tick, terms)
         self.ukf.update_heading(inc.theta_end, p.compass_sigma_rad)
+        self._after_heading(tick)
         if tick.fix is not None:
             self.ukf.update_position(*tick.fix)
         self._terms = terms
         tick.terms, tick.window, tick.pre_xy = terms, self._window, (pre_x, pre_y)
         tick.x, tick.P = self.ukf.get_state()
+
+    def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
+        """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
+        p, inc = self.p, tick.inc
+        s_f, s_l = process_sigmas(terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
+        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
+        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
+
+    def _after_heading(self, tick: _Tick) -> None:
+        """Hook for measurement updates after the compass (taco+: zero-velocity update); none in paper mode."""
+
+    def _open_tick(self, tick: _Tick) -> None:
+        """Hook before a new frame is advanced (taco+: stationary flag); none in paper mode."""
+
+    def _close_tick(self, tick: _Tick) -> None:
+        """Hook after a new frame joined the history (taco+: speed-error feedback); none in paper mode."""
 
     # ------------------------------------------------------------------ trigger and search
     def _maybe_trigger(self) -> None:
@@ -175,17 +194,24 @@ class Localiser:
             self._pending = None  # unanswered: drop it so the pipeline can ask again
         if self._ready is not None:
             return
-        eps = self._terms.epsilon
-        reason = trigger_reason(eps, self.t - self._last_fix_t, self.p.trigger_epsilon_m, self.p.trigger_time_s)
-        if reason is None:
+        plan = self._plan_search()
+        if plan is None:
             return
-        p = self.p
+        reason, bias, offsets = plan
         theta = float(self.pre.theta)
-        bias = forward_bias(eps, p.forward_bias_k, p.forward_bias_cap_m) if p.forward_bias else 0.0
-        offsets = cross_offsets(cross_spacing(eps, p.search_cross_k, p.cross_cap_m), p.multi_crop)
         centre, crops = search_centres(self.ukf.x[:2], theta, bias, offsets)
         self._query_id += 1
-        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, eps, reason.value)
+        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, self._terms.epsilon, reason)
+
+    def _plan_search(self) -> tuple[str, float, np.ndarray] | None:
+        """The paper's dual trigger and search (Sec. III-D): (reason, forward bias m, body offsets (K, 2) m),
+        or None when no fix is due."""
+        eps, p = self._terms.epsilon, self.p
+        reason = trigger_reason(eps, self.t - self._last_fix_t, p.trigger_epsilon_m, p.trigger_time_s)
+        if reason is None:
+            return None
+        bias = forward_bias(eps, p.forward_bias_k, p.forward_bias_cap_m) if p.forward_bias else 0.0
+        return reason.value, bias, cross_offsets(cross_spacing(eps, p.search_cross_k, p.cross_cap_m), p.multi_crop)
 
     def poll_query(self) -> FixQuery | None:
         """The query the trigger produced, once (None when there is none). At most one is in flight."""
@@ -206,15 +232,10 @@ class Localiser:
         """Hand back the matcher's results for a query (same order as its crop centres; None for a crop that
         could not be matched, e.g. off the map). The fix is applied at its capture time (rewind, update,
         replay) unless params.apply_on_arrival."""
-        pending = self._pending
+        q = self._take_pending(query_id, results)
+        if isinstance(q, FixOutcome):
+            return q
         now = self.t
-        if pending is None or pending.query.query_id != query_id:
-            return self._log(FixOutcome(query_id, False, "unknown_query", float("nan"), now))
-        self._pending = None
-        q = pending.query
-        if not any(r is not None for r in results):
-            self._last_fix_t = max(self._last_fix_t, now if self.p.apply_on_arrival else q.capture_t)
-            return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, now))
         weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
         k = best_candidate([r if r is not None else _NO_MATCH for r in results])
         best = results[k]
@@ -229,17 +250,34 @@ class Localiser:
             return self._log(FixOutcome(query_id, False, "yaw_gate", q.capture_t, now, k, xy, psi, weights=weights))
         s_f, s_l = fix_sigmas(best.w, self.p.fix_fwd_num, self.p.fix_fwd_min_m, self.p.fix_fwd_max_m,
                               self.p.fix_lat_num, self.p.fix_lat_min_m, self.p.fix_lat_max_m, self.p.anisotropic)
+        tick = self._capture_tick(q)
         if naive:
-            tick = self._history[-1] if self._history else None
             nis = self._apply_now(xy, s_f, s_l, tick)
         else:
-            tick = next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
             if tick is None:
                 return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
             nis = self._apply_at(tick, xy, s_f, s_l)
         if self.record and tick is not None:
             self._graph_fixes[tick.node] = FixNode(tick.node, xy.copy(), s_f, s_l)
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+
+    def _take_pending(self, query_id: int, results: Sequence[MatchResult | None]) -> FixQuery | FixOutcome:
+        """The in-flight query these results answer, or the outcome when they answer none or hold nothing."""
+        pending = self._pending
+        if pending is None or pending.query.query_id != query_id:
+            return self._log(FixOutcome(query_id, False, "unknown_query", float("nan"), self.t))
+        self._pending = None
+        q = pending.query
+        if not any(r is not None for r in results):
+            self._last_fix_t = max(self._last_fix_t, self.t if self.p.apply_on_arrival else q.capture_t)
+            return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, self.t))
+        return q
+
+    def _capture_tick(self, q: FixQuery) -> _Tick | None:
+        """The history frame a fix for `q` applies at: the latest (on arrival) or the capture frame."""
+        if self.p.apply_on_arrival:
+            return self._history[-1] if self._history else None
+        return next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
 
     def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: _Tick | None) -> float:
         R = fix_covariance(float(self.ukf.x[2]), s_f, s_l)
@@ -251,7 +289,7 @@ class Localiser:
         dx, dy = self.pre.interval_displacement
         self.pre.reset_position(float(self.ukf.x[0]) + dx, float(self.ukf.x[1]) + dy)
         if self.record and tick is not None:
-            self._graph_x[tick.node] = tick.x.copy()
+            self._graph_x[tick.node] = tick.x[:3].copy()
         return nis
 
     def _apply_at(self, tick: _Tick, xy: np.ndarray, s_f: float, s_l: float) -> float:
@@ -274,7 +312,7 @@ class Localiser:
         self.pre.reset_position(pre_x + dx, pre_y + dy)
         if self.record:
             for h in [tick, *later]:
-                self._graph_x[h.node] = h.x.copy()
+                self._graph_x[h.node] = h.x[:3].copy()
         return nis
 
     def _reset_anchor(self) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from taco_mav.core.plus import PlusParams
 from taco_mav.core.smoother import SmootherParams
 
 
@@ -56,3 +57,5 @@ class LocaliserParams:
     history_s: float = 10.0
     # smoother (Sec. III-G)
     smoother: SmootherParams = field(default_factory=SmootherParams)
+    # taco+ (issue 7): None = paper mode
+    plus: PlusParams | None = None

@@ -22,9 +22,17 @@ _EIG_FLOOR = 1e-9
 
 
 def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d_theta: float = 0.0) -> np.ndarray:
-    """Body-frame rigid motion (Sec. III-F): rotate (forward, left) by theta, add dtheta (no wrap here)."""
+    """Body-frame rigid motion (Sec. III-F): rotate (forward, left) by theta, add dtheta (no wrap here).
+    With the taco+ states (x[3] = speed error dv m/s, x[4] = accelerometer bias b m/s^2) the forward step
+    gains dv dt - b dt^2 / 2 and dv loses b dt."""
+    if len(x) == 5:
+        dv, b = x[3], x[4]
+        d_fwd = d_fwd + dv * dt - 0.5 * b * dt * dt
     c, s = math.cos(x[2]), math.sin(x[2])
-    return np.array([x[0] + c * d_fwd - s * d_left, x[1] + s * d_fwd + c * d_left, x[2] + d_theta])
+    moved = [x[0] + c * d_fwd - s * d_left, x[1] + s * d_fwd + c * d_left, x[2] + d_theta]
+    if len(x) == 5:
+        moved += [x[3] - x[4] * dt, x[4]]
+    return np.array(moved)
 
 
 def _residual_x(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -69,19 +77,28 @@ def joseph_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, innovation: np.nd
     return x_new, nearest_pd(P_new), nis
 
 
-_H_POS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-_H_THETA = np.array([[0.0, 0.0, 1.0]])
+def _rows(n: int, *cols: int) -> np.ndarray:
+    """Measurement matrix picking state components `cols` of an n-state vector."""
+    H = np.zeros((len(cols), n))
+    H[np.arange(len(cols)), cols] = 1.0
+    return H
 
 
 class PlanarUkf:
-    """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3)."""
+    """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3). taco+ passes a (5,) x0 that adds the
+    forward speed error dv (m/s, true minus preintegrated) and the forward accelerometer bias b (m/s^2)."""
 
     def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> None:
-        points = MerweScaledSigmaPoints(3, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
-        self._ukf = UnscentedKalmanFilter(dim_x=3, dim_z=2, dt=0.1, hx=_hx, fx=_motion, points=points,
+        n = len(x0)
+        if n not in (3, 5) or np.shape(P0) != (n, n):
+            raise ValueError(f"PlanarUkf: state must be 3 or 5 long with a matching P, got {n} and {np.shape(P0)}")
+        points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
+        self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=2, dt=0.1, hx=_hx, fx=_motion, points=points,
                                           residual_x=_residual_x)
         self._ukf.x = np.asarray(x0, dtype=float).copy()
         self._ukf.P = nearest_pd(np.asarray(P0, dtype=float))
+        self._h_pos, self._h_theta = _rows(n, 0, 1), _rows(n, 2)
+        self._h_speed = _rows(n, 3) if n == 5 else None
 
     @property
     def x(self) -> np.ndarray:
@@ -99,15 +116,16 @@ class PlanarUkf:
         self._ukf.x = np.asarray(x, dtype=float).copy()
         self._ukf.P = np.asarray(P, dtype=float).copy()
 
-    def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray) -> None:
-        """Propagate by one body-frame increment (metres, metres, rad) with process noise Q (3x3)."""
+    def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray, dt: float = 0.1) -> None:
+        """Propagate by one body-frame increment (metres, metres, rad) over dt seconds with process noise Q
+        (n x n; dt matters only for the taco+ speed states)."""
         ukf = self._ukf
         ukf.Q = Q
         try:
-            ukf.predict(d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
         except np.linalg.LinAlgError:
             ukf.P = nearest_pd(ukf.P, floor=1e-6)
-            ukf.predict(d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
         ukf.x[2] = _wrap(ukf.x[2])
         ukf.P = nearest_pd(ukf.P)
 
@@ -115,21 +133,31 @@ class PlanarUkf:
         """Position-only fix z (ENU metres, (2,)) with covariance R (2x2). Returns the NIS."""
         ukf = self._ukf
         innovation = np.asarray(z, dtype=float) - ukf.x[:2]
-        ukf.x, ukf.P, nis = joseph_update(ukf.x, ukf.P, _H_POS, innovation, R)
+        ukf.x, ukf.P, nis = joseph_update(ukf.x, ukf.P, self._h_pos, innovation, R)
         ukf.x[2] = _wrap(ukf.x[2])
         return nis
 
     def position_nis(self, z: np.ndarray, R: np.ndarray) -> float:
         """Normalised innovation squared of a position fix, without applying it."""
         innovation = np.asarray(z, dtype=float) - self._ukf.x[:2]
-        S = _H_POS @ self._ukf.P @ _H_POS.T + R
+        S = self._ukf.P[:2, :2] + R
         return float(innovation @ np.linalg.solve(S, innovation))
+
+    def update_speed_error(self, dv: float, sigma: float) -> None:
+        """Measurement of the speed error state dv (m/s, 1-sigma m/s): a zero-velocity update measures
+        dv = -(preintegrated speed). taco+ only."""
+        if self._h_speed is None:
+            raise ValueError("update_speed_error needs the 5-state (taco+) filter")
+        ukf = self._ukf
+        innovation = np.array([dv - ukf.x[3]])
+        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, self._h_speed, innovation, np.array([[sigma * sigma]]))
+        ukf.x[2] = _wrap(ukf.x[2])
 
     def update_heading(self, theta: float, sigma: float) -> None:
         """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi])."""
         ukf = self._ukf
         innovation = np.array([_wrap(theta - ukf.x[2])])
-        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, _H_THETA, innovation, np.array([[sigma * sigma]]))
+        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, self._h_theta, innovation, np.array([[sigma * sigma]]))
         ukf.x[2] = _wrap(ukf.x[2])
 
 

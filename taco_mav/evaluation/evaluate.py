@@ -62,8 +62,6 @@ def resolve_profile(req: EvalRequest) -> Profile:
             est = Estimator(req.estimator)
         except ValueError:
             raise ConfigError(f"--estimator: {req.estimator!r} is not one of paper, taco+") from None
-        if est is not Estimator.PAPER:
-            raise ConfigError("--estimator taco+: not implemented yet (issue 7); use --estimator paper")
         profile = replace_in(profile, "estimator", est)
     profile = replace_in(profile, "emulator.seed", int(req.seed))
     if req.apply_on_arrival:

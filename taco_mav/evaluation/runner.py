@@ -17,6 +17,7 @@ import numpy as np
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
 from taco_mav.core.localiser import FixOutcome, Localiser
+from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery
@@ -102,7 +103,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     imu = drive.imu
     t0 = float(imu.t[0])
     x0, y0, th0 = truth.pose_at(t0)
-    loc = Localiser(params, t0, x0, y0, th0, drive.start.speed, record=True, heading_offset=convergence)
+    loc = make_localiser(params, t0, x0, y0, th0, drive.start.speed, record=True, heading_offset=convergence)
     dead = Preintegrator(t0, x0, y0, th0, drive.start.speed, allow_reverse=params.allow_reverse,
                          max_dt_s=params.max_dt_s, heading_offset=convergence)
     dead_xy = np.zeros((len(imu), 2))

@@ -27,14 +27,17 @@ import numpy as np
 
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
+from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.types import ImuSample
+from taco_mav.cvgl.base import Matcher
 from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
 from taco_mav.link.connection import Link
 from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
-from taco_mav.link.health import Health
+from taco_mav.link.health import Health, LinkWatch, stall_sigma
+from taco_mav.link.reconnect import pace_tcp_reconnect
 from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
 from taco_mav.link.timesync import ClockMap
@@ -52,7 +55,9 @@ class DaemonOptions:
     """connect: pymavlink connection string; camera: `--camera` spec; map_path: satellite GeoTIFF (default:
     the world's mosaic for world: cameras); log_dir: tlog + JSONL events + resolved config; origin: (lat, lon,
     alt) start fix instead of the first GPS_RAW_INT; matcher_latency_s: artificial matcher delay (tests);
-    frame_max_gap_s: largest |frame time - capture time| accepted."""
+    frame_max_gap_s: largest |frame time - capture time| accepted; link_timeout_s: no message from the
+    autopilot for this long (companion clock) is a lost link; matcher_timeout_s: a matcher call running longer
+    (wall s) is cancelled and its worker replaced."""
 
     connect: str
     camera: str | None = None
@@ -62,6 +67,8 @@ class DaemonOptions:
     estimator: Estimator = Estimator.PAPER
     matcher_latency_s: float = 0.0
     frame_max_gap_s: float = 0.15
+    link_timeout_s: float = 3.0
+    matcher_timeout_s: float = 10.0
     signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
 
 
@@ -77,16 +84,18 @@ class DaemonStats:
     fixes: Counter[str] = field(default_factory=Counter)
     dropped: Counter[str] = field(default_factory=Counter)
     reboots: int = 0
+    imu_gaps: int = 0
 
 
 class Daemon:
     """One daemon run. `run()` blocks until `stop()` (or a signal via `run_daemon`); `start()` runs it in a
-    thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs)."""
+    thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs); matcher:
+    use this matcher instead of the profile's (tests, embedding)."""
 
     def __init__(self, profile: Profile, options: DaemonOptions, clock: Callable[[], float] = time.monotonic,
-                 wall_clock: Callable[[], float] = time.time) -> None:
-        if options.estimator is not Estimator.PAPER:
-            raise ConfigError(f"--estimator {options.estimator.value}: not built yet (issue 7); use 'paper'")
+                 wall_clock: Callable[[], float] = time.time, matcher: Matcher | None = None) -> None:
+        if options.estimator is not profile.estimator:
+            profile = dataclasses.replace(profile, estimator=options.estimator)
         bad = [m for m in profile.output.messages if m not in OUTPUTS]
         if bad or not profile.output.messages:
             raise ConfigError(f"output.messages: {bad or '[]'} not in {', '.join(OUTPUTS)}")
@@ -100,7 +109,8 @@ class Daemon:
         self.decoders = Decoders()
         self.clockmap = ClockMap(clock)
         self.health = Health(profile.output.degrade_accuracy_m, profile.output.recover_accuracy_m, profile.output.stall_s)
-        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status)
+        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status, matcher)
+        self.linkwatch = LinkWatch(options.link_timeout_s)
         self.loc: Localiser | None = None
         self.origin: encoders.Origin | None = None
         self._start_speed, self._start_course = 0.0, None  # m/s, NED rad
@@ -140,6 +150,7 @@ class Daemon:
         self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
                          tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock,
                          signing_key=opt.signing_key, rejected=self.decoders.rejected)
+        pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
@@ -219,6 +230,18 @@ class Daemon:
             self.params_check.tick(now, link.target_system, link.target_component)
         if self.t_stats.due(now):
             self.events.write("stats", **self.summary())
+        if self.linkwatch.check(now):
+            log.warning("link lost: nothing from the autopilot for %.1f s", self.opt.link_timeout_s)
+            self.events.write("link_lost", silent_s=now - (self.linkwatch.last_heard or now))
+
+    def _heard(self) -> None:
+        """A message from our autopilot: ends a link outage (event + STATUSTEXT, now that it is reachable)."""
+        outage = self.linkwatch.heard(self.clock())
+        if outage is not None:
+            text = f"link restored after {outage:.1f}s"
+            log.warning("%s", text)
+            self.events.write("link_restored", outage_s=outage)
+            self._status(SEV_WARNING, text, key=None)
 
     # ------------------------------------------------------------------ inputs
     def _handle(self, msg: Any, received: float) -> None:
@@ -230,6 +253,8 @@ class Daemon:
                     and (self.profile.link.target_sysid in (0, msg.get_srcSystem()))):
                 if link.adopt_autopilot(msg):
                     self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
+                if (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component):
+                    self._heard()
             return
         if not link.target_system:
             self.decoders.reject(kind, "before_autopilot")
@@ -237,6 +262,7 @@ class Daemon:
         if (msg.get_srcSystem(), msg.get_srcComponent()) != (link.target_system, link.target_component):
             self.decoders.reject(kind, "foreign_source")  # only the adopted autopilot's messages are acted on
             return
+        self._heard()
         if kind in IMU_MESSAGES:
             self._on_imu(msg, received)
         elif kind == "ATTITUDE":
@@ -276,6 +302,8 @@ class Daemon:
         last = self.last_imu
         if last is not None and r.t < last.t - self.profile.link.reboot_backstep_s:
             self._reboot(last.t, r.t)
+        elif last is not None and r.t - last.t > self.profile.imu.max_dt_s and self.loc is not None:
+            self._imu_gap(last.t, r.t)
         elif last is not None and r.t <= last.t:
             self.stats.dropped["imu_out_of_order"] += 1
             return
@@ -322,7 +350,7 @@ class Daemon:
             psi = self._start_course if use_course else self.attitude.yaw
             heading = math.remainder(math.pi / 2 - psi + conv, 2 * math.pi)
         params = self.params if sigma_xy is None else dataclasses.replace(self.params, initial_sigma_xy_m=sigma_xy)
-        self.loc = Localiser(params, t, xy[0], xy[1], heading, self._start_speed if speed is None else speed,
+        self.loc = make_localiser(params, t, xy[0], xy[1], heading, self._start_speed if speed is None else speed,
                              record=False, heading_offset=conv)
         self._generation += 1
         log.info("localiser anchored at t=%.3f s, xy (%.1f, %.1f) m, heading %.1f deg", t, xy[0], xy[1],
@@ -343,13 +371,35 @@ class Daemon:
                                  max(est.sigma_h, self.params.initial_sigma_xy_m))
         self.last_imu = None
 
+    def _imu_gap(self, t_last: float, t_new: float) -> None:
+        """No IMU from t_last to t_new (autopilot s), longer than the preintegrator bridges (imu.max_dt_s): the
+        motion in between is unknown. Re-anchor at the estimate carried on at its speed and heading, with the
+        1-sigma grown by half of (|speed| + 1 m/s) x gap (stopping at once or speeding up by 1 m/s/gap stays
+        within 2 sigma), so the output stays degraded until fixes bring the accuracy back."""
+        assert self.loc is not None
+        gap = t_new - t_last
+        est = self.loc.estimate()
+        self.stats.imu_gaps += 1
+        speed = est.speed if math.isfinite(est.speed) else 0.0
+        d = speed * (t_new - est.t)
+        xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
+        sigma = math.hypot(est.sigma_h, 0.5 * (abs(speed) + 1.0) * gap)
+        log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", gap, abs(d), sigma)
+        self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=sigma, carried_m=d)
+        self._make_localiser(t_new, xy, est.theta, speed, max(sigma, self.params.initial_sigma_xy_m))
+
     # ------------------------------------------------------------------ outputs
     def _send_outputs(self, now: float) -> None:
         if self.loc is None or self.origin is None or self.link is None:
             return
         est = self.loc.estimate()
         sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
-        change = self.health.update(sigma, now - self._last_imu_clock)
+        imu_age = now - self._last_imu_clock
+        stall_s = self.profile.output.stall_s
+        if imu_age > stall_s and math.isfinite(sigma):  # no IMU: the vehicle may be anywhere within speed x age
+            grown = stall_sigma(sigma, est.speed, imu_age, stall_s)
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + (grown**2 - sigma**2) * np.eye(2))
+        change = self.health.update(sigma, imu_age)
         if change:
             log.warning("%s", change) if not self.health.healthy else log.info("%s", change)
             self.events.write("health", text=change, healthy=self.health.healthy)
@@ -388,7 +438,10 @@ class Daemon:
         lat = np.array(self.stats.imu_to_estimate_s) * 1e3
         return {"imu_samples": self.stats.imu_samples, "queries": self.stats.queries, "fixes": dict(self.stats.fixes),
                 "dropped": dict(self.stats.dropped), "rejected_inputs": dict(self.decoders.rejected),
-                "outputs": len(self.stats.output_times), "reboots": self.stats.reboots,
+                "outputs": len(self.stats.output_times), "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
+                "link_outages": self.linkwatch.outages, "link_lost": self.linkwatch.lost,
+                "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
+                "stuck_matchers": self.fixes.stuck,
                 "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
                 "clock_source": self.clockmap.source, "healthy": self.health.healthy,
                 "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0}

@@ -1,0 +1,232 @@
+"""taco+ (issue 7): the Localiser with the paper's heuristics replaced where they lose lock or overwrite the
+state (see `plus.py` for the pieces and `lock.py` for loss-of-lock recovery). Same facade, same history
+replay for late fixes; paper mode (`Localiser`) is untouched.
+
+State: x, y (ENU m), theta (ENU rad), dv (speed error, m/s), b (forward accelerometer bias, m/s^2). After every
+frame the speed error is moved into the preintegrator (error-state feedback), so `estimate().speed` is the
+corrected speed; the amount is kept on the frame so a replay after a late fix subtracts it again.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from taco_mav.core.error_model import ErrorTerms
+from taco_mav.core.gate import yaw_residual
+from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
+from taco_mav.core.lock import LockMonitor, LockState
+from taco_mav.core.params import LocaliserParams
+from taco_mav.core.plus import consensus, cross_arm, grid_rings, hex_offsets, process_noise_plus
+from taco_mav.core.search import cross_offsets, fix_position
+from taco_mav.core.smoother import FixNode
+from taco_mav.core.stationary import StationaryDetector
+from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult
+from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas
+
+
+def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
+                   speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> Localiser:
+    """The Localiser for the estimator mode in `params`: paper (params.plus is None) or taco+."""
+    cls = Localiser if params.plus is None else PlusLocaliser
+    return cls(params, t0, x, y, heading, speed, record=record, heading_offset=heading_offset)
+
+
+def _sigma_h(P: np.ndarray) -> float:
+    """1-sigma horizontal uncertainty, metres: sqrt of the largest eigenvalue of the position block."""
+    return float(math.sqrt(max(np.linalg.eigvalsh(P[:2, :2]).max(), 0.0)))
+
+
+class PlusLocaliser(Localiser):
+    """taco+ mode. Construct through `make_localiser` (or directly with params.plus set)."""
+
+    def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
+                 speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> None:
+        if params.plus is None:
+            raise ValueError("PlusLocaliser needs params.plus (the taco+ parameters)")
+        self.q = params.plus
+        super().__init__(params, t0, x, y, heading, speed, record, heading_offset)
+        q, s_xy, s_th = self.q, params.initial_sigma_xy_m, params.initial_sigma_theta_rad
+        P0 = np.diag([s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2])
+        self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0]), P0, params.ukf_alpha, params.ukf_beta,
+                             params.ukf_kappa)
+        self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2)
+        self.lock = LockMonitor(q.lost_after, q.capture_radius_m, q.confirm_fixes)
+        self._last_answer_t = -math.inf
+        self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
+
+    # ------------------------------------------------------------------ IMU path
+    def add_imu(self, sample: ImuSample) -> None:
+        if sample.t > self.pre.t:
+            self.still.add(sample.t, sample.accel_frd, sample.gyro_frd)
+        super().add_imu(sample)
+
+    def _open_tick(self, tick: _Tick) -> None:
+        q = self.q
+        tick.stationary = q.zupt and self.still.stationary and abs(self.pre.speed) <= q.zupt_speed_max_mps
+
+    def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
+        inc = tick.inc
+        Q = process_noise_plus(float(self.ukf.x[2]), max(inc.dt, 1e-6), inc.distance, self.q)
+        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt)
+
+    def _after_heading(self, tick: _Tick) -> None:
+        if tick.stationary:  # true speed 0: dv = -(preintegrated speed at the frame end)
+            self.ukf.update_speed_error(-tick.inc.speed_end, self.q.zupt_sigma_mps)
+        if tick.dv_fed:
+            self.ukf.x[3] -= tick.dv_fed
+
+    def _close_tick(self, tick: _Tick) -> None:
+        self._feedback(tick)
+
+    def _feedback(self, tick: _Tick) -> None:
+        """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""
+        old = self.pre.speed
+        new = old + float(self.ukf.x[3])
+        if not self.p.allow_reverse:
+            new = max(new, 0.0)
+        applied = new - old
+        if applied:
+            self.pre.speed = new
+            self.ukf.x[3] -= applied
+            tick.dv_fed += applied
+            tick.x[3] -= applied
+
+    # ------------------------------------------------------------------ trigger and search
+    def _plan_search(self) -> tuple[str, float, np.ndarray] | None:
+        q = self.q
+        sig = _sigma_h(self.ukf.P)
+        if self.lock.on_uncertainty(self.t, sig):
+            self._inflate(sig)
+            sig = _sigma_h(self.ukf.P)
+        if self.t - self._last_answer_t < q.recover_interval_s:
+            return None
+        state = self.lock.state
+        if state is LockState.LOST:
+            rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
+            return "recover", 0.0, hex_offsets(rings, q.grid_spacing_m)
+        arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
+        if state is LockState.CONFIRMING:
+            return "confirm", 0.0, arm
+        if sig >= q.trigger_sigma_m:
+            return "covariance", 0.0, arm
+        if self.t - self._last_fix_t >= q.trigger_time_s and not self.still.stationary:
+            return "time", 0.0, arm
+        return None
+
+    def _inflate(self, sigma_m: float) -> None:
+        """Lock lost: widen the position uncertainty by at least lost_sigma_min_m (and sigma_m), metres."""
+        self._widen(max(self.q.lost_sigma_min_m, sigma_m))
+
+    def _widen(self, s: float) -> None:
+        """Add s^2 (m^2) to both position variances."""
+        x, P = self.ukf.get_state()
+        P[:2, :2] += s * s * np.eye(2)
+        self.ukf.set_state(x, P)
+
+    # ------------------------------------------------------------------ fixes
+    def add_fix(self, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome:
+        """As Localiser.add_fix, with consensus over the candidates, the chi-square innovation gate and the
+        lock state machine (every answered trigger without an accepted fix counts towards loss of lock)."""
+        q = self._take_pending(query_id, results)
+        self._last_answer_t = self.t
+        if isinstance(q, FixOutcome):
+            if q.reason == "no_results":
+                self._failed(q.reason, 0.0)
+            return q
+        now, p, qp = self.t, self.p, self.q
+        weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
+        xy = np.full((len(results), 2), np.nan)
+        psi = np.full(len(results), np.nan)
+        for k, r in enumerate(results):
+            if r is not None:
+                xy[k] = fix_position(q.crop_centres[k], q.heading, r.t)
+                psi[k] = yaw_residual(r.R)
+        w = np.array(weights)
+        finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
+        usable = finite & (np.abs(psi) <= p.yaw_residual_max_rad) if p.yaw_gate else finite.copy()
+        if self.lock.state is LockState.LOST:
+            usable &= w >= qp.recover_w_min
+        c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m)
+        self._last_fix_t = max(self._last_fix_t, now if p.apply_on_arrival else q.capture_t)
+        if c is None:
+            reason = "nonfinite" if not finite.any() else ("yaw_gate" if self.lock.state is not LockState.LOST
+                                                           else "weak")
+            self._failed(reason, 0.0)
+            return self._log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
+        k, z = c.index, c.xy
+        tick = self._capture_tick(q)
+        if tick is None:
+            return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
+        s_f, s_l = fix_sigmas(c.weight, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num,
+                              p.fix_lat_min_m, p.fix_lat_max_m, p.anisotropic)
+        innov = z - tick.x[:2]
+        jump = float(np.linalg.norm(innov))
+        R = fix_covariance(float(tick.x[2]), s_f, s_l)
+        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + R, innov))
+        state = self.lock.state
+        if state is LockState.LOST:  # relocalise: the candidate replaces the position (the jump enters P)
+            tick.P = tick.P.copy()
+            tick.P[:2, :2] += jump * jump * np.eye(2)
+        elif nis > qp.chi2_gate:
+            self._failed("innovation_gate", jump)
+            return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
+                                        nis, weights))
+        if p.apply_on_arrival:
+            self._apply_now(z, s_f, s_l, tick)
+        else:
+            self._apply_at(tick, z, s_f, s_l)
+        if self.record:
+            self._graph_fixes[tick.node] = FixNode(tick.node, z.copy(), s_f, s_l)
+        self._settle_lock(state, jump, s_f, s_l)
+        if self._history:
+            self._feedback(self._history[-1])
+        return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
+
+    def _failed(self, reason: str, innovation_m: float) -> None:
+        """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared
+        lost (half the disagreement, at least lost_sigma_min_m) and by half a grid spacing per failed
+        recovery attempt."""
+        was_lost = self.lock.state is LockState.LOST
+        if self.lock.on_failure(self.t, reason):
+            self._inflate(0.5 * innovation_m)
+        elif was_lost:
+            self._widen(0.5 * self.q.grid_spacing_m)
+
+    def _settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:
+        """Lock bookkeeping after an applied fix. A relocalisation (from LOST) keeps half its jump as a
+        1-sigma floor on the position uncertainty until `confirm_fixes` later fixes agree with it to within
+        3 fix sigmas; a confirming fix that disagrees restarts the count and keeps the larger floor."""
+        if state is LockState.LOST:
+            self.lock.on_relocalised(self.t, jump)
+            self._floor_m = 0.5 * jump
+        elif state is LockState.CONFIRMING:
+            if jump <= 3.0 * max(s_f, s_l):
+                self.lock.on_accepted(self.t)
+            else:
+                self.lock.confirmations = 0
+                self._floor_m = max(self._floor_m, 0.5 * jump)
+        else:
+            self.lock.on_accepted(self.t)
+        if self.lock.state is LockState.LOCKED:
+            self._floor_m = 0.0
+        elif self._floor_m > 0.0:
+            x, P = self.ukf.get_state()
+            lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
+            if lo < self._floor_m**2:
+                P[:2, :2] += (self._floor_m**2 - lo) * np.eye(2)
+                self.ukf.set_state(x, P)
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> Estimate:
+        est = super().estimate()
+        est.extra.update(lock=self.lock.state.value, speed_error=float(self.ukf.x[3]), accel_bias=float(self.ukf.x[4]),
+                         stationary=self.still.stationary)
+        return est
+
+    @property
+    def lock_events(self) -> list[tuple[float, str, str]]:
+        """(t, kind, detail) of lock_lost / relocalised / relock_failed / recovered."""
+        return list(self.lock.events)

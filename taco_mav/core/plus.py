@@ -1,0 +1,130 @@
+"""taco+ (issue 7, beyond the paper): the pieces that replace the paper's heuristics in `Estimator.TACO_PLUS`.
+
+- Process noise from the IMU's error growth instead of sigma_fwd >= 1 m per frame: a small position random
+  walk plus a distance-proportional term, with the forward-speed error and the forward accelerometer bias
+  carried as states (x[3] = dv, m/s: true minus preintegrated speed; x[4] = b, m/s^2: the preintegrated
+  speed drifts by +b per second), each a random walk.
+- A covariance trigger: ask for a fix when the filter's own 1-sigma horizontal uncertainty reaches
+  `trigger_sigma_m` (or `trigger_time_s` passed while moving); the search cross is centred on the current
+  estimate (no forward bias: our UKF is predicted to the capture time) and sized by that uncertainty.
+- Consensus over the candidates instead of argmax w, and a chi-square innovation gate beside the yaw gate.
+- A hexagonal grid search, sized by the uncertainty, while lock is lost (`lock.py`).
+
+All lengths metres, angles radians, times seconds; body offsets (forward, left); world ENU.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from taco_mav.core.ukf import fix_covariance
+
+
+@dataclass(frozen=True)
+class PlusParams:
+    """taco+ parameters (defaults: see config.PlusConfig, which cites where each comes from)."""
+
+    # process noise (per second / per metre travelled)
+    q_pos_mps: float = 0.02  # position random walk, m/sqrt(s)
+    q_fwd_per_m: float = 0.01  # along-track error per metre travelled (1-sigma fraction)
+    q_lat_per_m: float = 0.01  # cross-track error per metre travelled
+    q_theta_rad: float = 0.002  # heading random walk, rad/sqrt(s)
+    q_speed_mps: float = 0.2  # speed-error random walk, (m/s)/sqrt(s)
+    q_bias_mps2: float = 1e-3  # accelerometer-bias random walk, (m/s^2)/sqrt(s)
+    initial_speed_sigma_mps: float = 0.3
+    initial_bias_sigma_mps2: float = 0.05
+    # zero-velocity update
+    zupt: bool = True
+    zupt_sigma_mps: float = 0.02
+    zupt_window_s: float = 1.0
+    zupt_gyro_max_rps: float = 0.02
+    zupt_accel_std_max_mps2: float = 0.05
+    zupt_speed_max_mps: float = 0.5
+    # trigger and search
+    trigger_sigma_m: float = 3.0
+    trigger_time_s: float = 10.0
+    cross_k: float = 2.0  # cross arm = clip(k sigma_h, min, max)
+    cross_min_m: float = 1.0
+    cross_max_m: float = 10.0
+    # gating and consensus
+    chi2_gate: float = 13.82  # 2-dof chi-square, 99.9 %
+    consensus_radius_m: float = 3.0
+    # loss of lock and recovery
+    capture_radius_m: float = 20.0
+    lost_after: int = 4  # consecutive triggers without an accepted fix
+    lost_sigma_min_m: float = 10.0
+    grid_spacing_m: float = 15.0
+    grid_max_rings: int = 4
+    recover_interval_s: float = 0.5
+    recover_w_min: float = 0.5
+    confirm_fixes: int = 2
+
+
+def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams) -> np.ndarray:
+    """Q (5x5) for one predict over `dt` seconds and `distance` metres at heading theta (ENU rad): position
+    random walk plus distance-proportional body-frame terms rotated into ENU, heading, speed-error and
+    bias random walks."""
+    Q = np.zeros((5, 5))
+    rw = p.q_pos_mps * p.q_pos_mps * dt
+    s_f, s_l = p.q_fwd_per_m * distance, p.q_lat_per_m * distance
+    Q[:2, :2] = fix_covariance(theta, s_f, s_l) + rw * np.eye(2)
+    Q[2, 2] = p.q_theta_rad * p.q_theta_rad * dt
+    Q[3, 3] = p.q_speed_mps * p.q_speed_mps * dt
+    Q[4, 4] = p.q_bias_mps2 * p.q_bias_mps2 * dt
+    return Q
+
+
+def cross_arm(sigma_h: float, p: PlusParams) -> float:
+    """Arm of the five-point cross, metres, from the 1-sigma horizontal uncertainty."""
+    return min(max(p.cross_k * sigma_h, p.cross_min_m), p.cross_max_m)
+
+
+def grid_rings(sigma_h: float, p: PlusParams) -> int:
+    """Hexagonal rings needed to cover 3 sigma (at least 1, at most grid_max_rings)."""
+    return int(min(max(math.ceil(3.0 * sigma_h / p.grid_spacing_m), 1), p.grid_max_rings))
+
+
+def hex_offsets(rings: int, spacing: float) -> np.ndarray:
+    """Body-frame offsets (forward, left), metres, of a hexagonal grid: the centre then ring 1, 2, ...
+    (6 k points on ring k), shape (1 + 3 rings (rings + 1), 2). Every point of the disc of radius
+    rings * spacing lies within spacing / sqrt(3) of a grid point."""
+    pts = [(0.0, 0.0)]
+    dirs = [(math.cos(a), math.sin(a)) for a in np.arange(6) * math.pi / 3.0]
+    for k in range(1, rings + 1):
+        for i in range(6):
+            (ax, ay), (bx, by) = dirs[i], dirs[(i + 1) % 6]
+            for j in range(k):
+                pts.append((spacing * (k * ax + j * (bx - ax)), spacing * (k * ay + j * (by - ay))))
+    return np.array(pts)
+
+
+@dataclass(frozen=True)
+class Consensus:
+    """The chosen fix. index: the highest-weight member of the winning cluster; xy: w-weighted mean of the
+    cluster, ENU metres; support: cluster size; weight: the best member's w."""
+
+    index: int
+    xy: np.ndarray
+    support: int
+    weight: float
+
+
+def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float) -> Consensus | None:
+    """Pick the cluster of usable candidates (world positions `xy` (K, 2), weights `w` (K,)) with the largest
+    summed weight, members within `radius_m` of its seed; None when nothing is usable. The cluster mean is
+    reported with the best member's weight: nearby crops of one frame are not independent evidence."""
+    idx = np.flatnonzero(usable)
+    if idx.size == 0:
+        return None
+    pts, ws = xy[idx], w[idx]
+    d = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    members = d <= radius_m
+    score = members @ ws
+    seed = int(np.argmax(score + 1e-9 * ws))  # ties: the heavier seed
+    m = members[seed]
+    best = int(idx[m][np.argmax(ws[m])])
+    mean = (ws[m, None] * pts[m]).sum(axis=0) / ws[m].sum()
+    return Consensus(best, mean, int(m.sum()), float(w[best]))
