@@ -9,6 +9,10 @@ pose). The daemon maps query capture times onto that clock before asking.
 
 Spec strings (`--camera`): "world:DIR", "folder:DIR[@OFFSET_S]" or an existing directory, "0" (device index),
 a video file, "rtsp://...", or a GStreamer pipeline (contains "!").
+
+`FrameGuard` vets what a source returns before it reaches a matcher: missing, stale (frame time far from the
+capture time), corrupt (unreadable file), wrong shape, blank (uniform: lens cap, dead sensor) and frozen
+(bit-identical to the previous frame at another time) frames are rejected with `FrameRejected(reason)`.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import logging
 import math
 import threading
 import time
+import zlib
 from collections import deque
 from pathlib import Path
 from typing import Protocol
@@ -32,7 +37,18 @@ from taco_mav.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CameraSource", "ClockDomain", "FolderSource", "VideoSource", "WorldSource", "open_camera"]
+__all__ = ["CameraSource", "ClockDomain", "FolderSource", "FrameGuard", "FrameRejected", "VideoSource", "WorldSource",
+           "open_camera"]
+
+FRAME_REJECT_REASONS = ("no_frame", "stale_frame", "corrupt_frame", "bad_shape", "blank_frame", "frozen_frame")
+
+
+class FrameRejected(Exception):
+    """A camera frame that must not reach the matcher. reason: one of FRAME_REJECT_REASONS; detail: text."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason, self.detail = reason, detail
 
 
 class ClockDomain(enum.Enum):
@@ -43,10 +59,12 @@ class ClockDomain(enum.Enum):
 
 
 class CameraSource(Protocol):
-    """A camera. `needs_pose` sources want `feed_pose(t_autopilot, lat, lon, yaw_ned)` calls (world:)."""
+    """A camera. `needs_pose` sources want `feed_pose(t_autopilot, lat, lon, yaw_ned)` calls (world:);
+    `noiseless` sources render a model, so bit-identical frames at different times are legitimate there."""
 
     clock: ClockDomain
     needs_pose: bool
+    noiseless: bool
 
     def start(self) -> None: ...
 
@@ -61,6 +79,7 @@ class VideoSource:
 
     clock = ClockDomain.COMPANION
     needs_pose = False
+    noiseless = False
 
     def __init__(self, spec: str, ring: int = 30, clock=time.monotonic) -> None:
         self.spec = spec
@@ -136,6 +155,7 @@ class FolderSource:
 
     clock = ClockDomain.AUTOPILOT
     needs_pose = False
+    noiseless = False
 
     def __init__(self, folder: str | Path, offset_s: float = 0.0) -> None:
         from taco_mav.datasets.kitti_io import read_timestamps
@@ -165,8 +185,7 @@ class FolderSource:
             return None
         bgr = cv2.imread(str(self.paths[best]), cv2.IMREAD_COLOR)
         if bgr is None:
-            log.warning("%s: not readable", self.paths[best])
-            return None
+            raise FrameRejected("corrupt_frame", f"{self.paths[best].name} not readable")
         return self.times[best], cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
@@ -192,6 +211,7 @@ class WorldSource:
 
     clock = ClockDomain.AUTOPILOT
     needs_pose = True
+    noiseless = True
 
     def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000) -> None:
         import rasterio
@@ -231,6 +251,39 @@ class WorldSource:
         if abs(best[0] - t) > max_gap_s:
             return None
         return best[0], self.renderer.render(np.array(best[1:]))
+
+
+class FrameGuard:
+    """Vets frames for one camera (used from one thread: the matcher worker). width, height: the profile's
+    image size, px; max_gap_s: largest |frame time - capture time| accepted, s; min_std: a frame whose grey
+    levels vary less than this (std over a subsample, 0-255) is blank; check_frozen: reject a frame identical
+    (CRC-32 of all pixels) to the previous one but stamped at another time (False for noiseless sources)."""
+
+    def __init__(self, width: int, height: int, max_gap_s: float, min_std: float = 2.0,
+                 check_frozen: bool = True) -> None:
+        self.width, self.height, self.max_gap_s = int(width), int(height), float(max_gap_s)
+        self.min_std, self.check_frozen = float(min_std), check_frozen
+        self._last: tuple[float, int] | None = None  # (frame time s, CRC-32) of the last frame passed
+
+    def check(self, got: tuple[float, np.ndarray] | None, t: float) -> tuple[float, np.ndarray]:
+        """(frame time, RGB uint8 (H, W, 3)) of a frame nearest capture time t (s, the source's clock), or
+        FrameRejected with the reason."""
+        if got is None:
+            raise FrameRejected("no_frame")
+        t_frame, img = got
+        if not math.isfinite(t_frame) or abs(t_frame - t) > self.max_gap_s:
+            raise FrameRejected("stale_frame", f"frame {t_frame - t:+.3f} s from the capture time")
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != (self.height, self.width, 3):
+            shape = getattr(img, "shape", None)
+            raise FrameRejected("bad_shape", f"{shape} {getattr(img, 'dtype', type(img).__name__)}, expected "
+                                             f"({self.height}, {self.width}, 3) uint8")
+        if float(img[::4, ::4].std()) < self.min_std:
+            raise FrameRejected("blank_frame", f"mean grey {float(img[::4, ::4].mean()):.0f}")
+        crc = zlib.crc32(np.ascontiguousarray(img).data)
+        last, self._last = self._last, (t_frame, crc)
+        if self.check_frozen and last is not None and last[1] == crc and last[0] != t_frame:
+            raise FrameRejected("frozen_frame", f"identical to the frame at {last[0]:.3f} s")
+        return t_frame, img
 
 
 def open_camera(spec: str, camera: GroundCamera) -> CameraSource:

@@ -5,6 +5,11 @@ Sends HEARTBEAT 1 Hz, GPS_RAW_INT (3D fix) for the first second, RAW_IMU at `imu
 -1000 mG), ATTITUDE at `att_hz`, SYSTEM_TIME 1 Hz, SIMSTATE (the true pose) at 10 Hz; answers
 PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`), COMMAND_LONG (ACK accepted) and TIMESYNC.
 Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; autopilot time = boot_s + elapsed.
+
+Faults: `stall` silences IMU/ATTITUDE; `outage` closes the connection for a while (nothing sent or read; the
+vehicle drives on) and reopens it (UDP: a new socket, `udp_local_port` keeps the source port or not; TCP: the
+autopilot is the server, `transport="tcp"`, and closes and reopens its listening socket); `reboot_at` restarts
+the autopilot clock.
 """
 
 from __future__ import annotations
@@ -52,18 +57,33 @@ class MiniAutopilot:
     send_simstate: bool = True
     stall: tuple[float, float] | None = None  # (from, to) elapsed s: no IMU/ATTITUDE (inputs stall)
     reboot_at: float | None = None  # elapsed s: the autopilot clock restarts at 1 s (a reboot)
+    outage: tuple[float, float] | None = None  # (from, to) elapsed s: connection closed, nothing sent or read
+    transport: str = "udp"  # "udp": udpout to the daemon's udpin; "tcp": a server on `port` (daemon: tcp:)
+    udp_local_port: int | None = None  # UDP source port (None: ephemeral, a new one after an outage)
+    gps_s: float = 1.0  # GPS_RAW_INT (3D fix, 4 Hz) for this long after start
     received: list[Received] = field(default_factory=list)
     params_asked: list[str] = field(default_factory=list)
     commands: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{self.port}", source_system=1, source_component=1,
-                                               dialect="ardupilotmega")
+        self.conn = self._open()
         self.proj = UtmProjector.for_latlon(self.lat0, self.lon0)
         self.e0, self.n0 = self.proj.to_utm(self.lat0, self.lon0)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self.t_start = 0.0
+
+    def _open(self):
+        """A fresh connection: udpout (optionally from a fixed source port) or a TCP server."""
+        if self.transport == "tcp":
+            return mavutil.mavlink_connection(f"tcpin:127.0.0.1:{self.port}", source_system=1, source_component=1,
+                                              dialect="ardupilotmega")
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{self.port}", source_system=1, source_component=1,
+                                          dialect="ardupilotmega")
+        if self.udp_local_port is not None:
+            conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            conn.port.bind(("127.0.0.1", self.udp_local_port))
+        return conn
 
     # truth ------------------------------------------------------------
     def truth_latlon(self, elapsed: float) -> tuple[float, float]:
@@ -88,7 +108,18 @@ class MiniAutopilot:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(5.0)
-        self.conn.close()
+        if self.conn is not None:
+            self.conn.close()
+
+    def _in_outage(self, el: float) -> bool:
+        """Close the connection at the outage start, reopen it at its end; True while it is closed."""
+        out = self.outage is not None and self.outage[0] <= el < self.outage[1]
+        if out and self.conn is not None:
+            self.conn.close()
+            self.conn = None
+        elif not out and self.conn is None:
+            self.conn = self._open()
+        return out
 
     def _run(self) -> None:
         mav = self.conn.mav
@@ -98,17 +129,23 @@ class MiniAutopilot:
         while not self._stop.is_set():
             el = time.monotonic() - self.t_start
             t_ap = self.ap_time(el)
+            if self._in_outage(el):  # the vehicle drives on; nothing is sent, nothing queued for later
+                k_imu, k_att, k_sim = (int(el * r) + 1 for r in (self.imu_hz, self.att_hz, 10.0))
+                next_hb, next_st = math.floor(el) + 1.0, math.floor(el) + 1.0
+                time.sleep(0.002)
+                continue
+            mav = self.conn.mav
             stalled = self.stall is not None and self.stall[0] <= el < self.stall[1]
             if el >= next_hb:
                 mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
                 next_hb += 1.0
             if el >= next_st:
                 mav.system_time_send(int(time.time() * 1e6), int(t_ap * 1e3))
-                if el < 1.0:
+                if el < self.gps_s:
                     lat, lon = self.truth_latlon(el)
                     mav.gps_raw_int_send(int(t_ap * 1e6), 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3),
                                          80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12)
-                next_st += 0.25 if el < 1.0 else 1.0
+                next_st += 0.25 if el < self.gps_s else 1.0
             while k_att / self.att_hz <= el:
                 if not stalled:
                     mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,14 +23,26 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class ServiceStats:
-    """Counters: triggers answered, crops off the map, matcher wall time (s)."""
+    """Counters: triggers answered, crops off the map, triggers with every crop off the map, matcher and crop
+    wall time (s); per_trigger_s: the last 10 000 triggers' wall times, s (bounded for long runs)."""
 
     answered: int = 0
     crops_off_map: int = 0
     triggers_off_map: int = 0
     matcher_s: float = 0.0
     crop_s: float = 0.0
-    per_trigger_s: list[float] = field(default_factory=list)
+    per_trigger_s: deque[float] = field(default_factory=lambda: deque(maxlen=10_000))
+
+
+def _check_results(results: object, n: int) -> list[MatchResult]:
+    """The matcher's answer for n crops, or ValueError naming what is wrong (count, type or shape)."""
+    if not isinstance(results, (list, tuple)) or len(results) != n:
+        got = len(results) if isinstance(results, (list, tuple)) else type(results).__name__
+        raise ValueError(f"matcher returned {got} results for {n} crops")
+    for r in results:
+        if not isinstance(r, MatchResult) or np.shape(r.R) != (2, 2) or np.shape(r.t) != (2,):
+            raise ValueError(f"matcher returned a malformed result: {r!r:.120}")
+    return list(results)
 
 
 class FixService:
@@ -63,12 +76,13 @@ class FixService:
         return out
 
     def answer(self, query: FixQuery, frame: GroundFrame) -> list[MatchResult | None]:
-        """MatchResults aligned with query.crop_centres (None for crops off the map)."""
+        """MatchResults aligned with query.crop_centres (None for crops off the map). ValueError when the
+        matcher's answer is malformed (wrong count, type or shape)."""
         t0 = time.perf_counter()
         crops = self.crops(query)
         t1 = time.perf_counter()
         valid = [c for c in crops if c is not None]
-        results: list[MatchResult] = self.matcher.match(frame, valid) if valid else []
+        results = _check_results(self.matcher.match(frame, valid), len(valid)) if valid else []
         t2 = time.perf_counter()
         if not valid:
             self.stats.triggers_off_map += 1

@@ -374,8 +374,7 @@ class Daemon:
     def _imu_gap(self, t_last: float, t_new: float) -> None:
         """No IMU from t_last to t_new (autopilot s), longer than the preintegrator bridges (imu.max_dt_s): the
         motion in between is unknown. Re-anchor at the estimate carried on at its speed and heading, with the
-        1-sigma grown by half of (|speed| + 1 m/s) x gap (stopping at once or speeding up by 1 m/s/gap stays
-        within 2 sigma), so the output stays degraded until fixes bring the accuracy back."""
+        1-sigma grown over the gap (`stall_sigma`), so the output stays degraded until fixes bring it back."""
         assert self.loc is not None
         gap = t_new - t_last
         est = self.loc.estimate()
@@ -383,7 +382,7 @@ class Daemon:
         speed = est.speed if math.isfinite(est.speed) else 0.0
         d = speed * (t_new - est.t)
         xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
-        sigma = math.hypot(est.sigma_h, 0.5 * (abs(speed) + 1.0) * gap)
+        sigma = stall_sigma(est.sigma_h, speed, gap)
         log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", gap, abs(d), sigma)
         self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=sigma, carried_m=d)
         self._make_localiser(t_new, xy, est.theta, speed, max(sigma, self.params.initial_sigma_xy_m))
@@ -397,7 +396,7 @@ class Daemon:
         imu_age = now - self._last_imu_clock
         stall_s = self.profile.output.stall_s
         if imu_age > stall_s and math.isfinite(sigma):  # no IMU: the vehicle may be anywhere within speed x age
-            grown = stall_sigma(sigma, est.speed, imu_age, stall_s)
+            grown = stall_sigma(sigma, est.speed, imu_age)
             est = dataclasses.replace(est, cov_xy=est.cov_xy + (grown**2 - sigma**2) * np.eye(2))
         change = self.health.update(sigma, imu_age)
         if change:

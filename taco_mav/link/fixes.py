@@ -10,35 +10,46 @@ queries carry autopilot seconds; a companion-clock camera is mapped through the 
     fixes.on_origin(origin)                     # FixService on the origin's UTM zone, worker thread
     fixes.drain(loc, generation); fixes.poll(loc, generation)   # every loop step
     fixes.stop(); ...; fixes.close()
+
+Faults: every query that yields no fix is cancelled in the Localiser (so it can ask again) and counted in
+`stats.fixes` by reason: a camera guard reason (no_frame, stale_frame, corrupt_frame, bad_shape, blank_frame,
+frozen_frame), "matcher_error", "matcher_timeout" (a job running longer than `options.matcher_timeout_s` wall
+seconds: the worker is abandoned and a fresh one started, at most `MAX_STUCK` stuck threads at a time, then
+"matcher_hung"), "worker_busy", "no_camera", "no_matcher". Without fixes the UKF's covariance grows and the
+daemon's Health degrades the fix type: nothing here extrapolates a fix.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import queue
+import time
 from collections import Counter, deque
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from taco_mav.camera import CameraSource, ClockDomain, WorldSource, open_camera
+from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, WorldSource, open_camera
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import FixQuery
-from taco_mav.cvgl.base import GroundFrame
+from taco_mav.cvgl.base import GroundFrame, Matcher
 from taco_mav.link import encoders
 from taco_mav.link.decoders import SimPose
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.timesync import ClockMap
-from taco_mav.link.worker import MatchWorker, WorkResult
+from taco_mav.link.worker import FetchFn, MatchWorker, WorkResult
 
 if TYPE_CHECKING:
     from taco_mav.link.daemon import DaemonOptions
 
 log = logging.getLogger(__name__)
 
-SEV_NOTICE, SEV_INFO = 5, 6  # MAV_SEVERITY of the fix STATUSTEXTs (same values as taco_mav.link.daemon)
+SEV_WARNING, SEV_NOTICE, SEV_INFO = 4, 5, 6  # MAV_SEVERITY of the fix STATUSTEXTs (as taco_mav.link.daemon)
+STALE_LOOK_S = 60.0  # sources are asked for frames this far from the capture time, so stale ones are told apart
+MAX_STUCK = 2  # abandoned matcher threads still inside the matcher; beyond this no new worker is started
 
 StatusFn = Callable[[int, str, str | None], None]
 """status(severity, text, key): STATUSTEXT to the autopilot, rate-limited by key (the daemon's `_status`)."""
@@ -54,19 +65,23 @@ class FixCounters(Protocol):
 class FixPipeline:
     """Camera, satellite map, matcher and matcher worker of one daemon run. profile: the matcher and map
     settings; options: camera spec, map path, frame_max_gap_s (s), matcher_latency_s (s); clockmap: companion
-    -> autopilot clock; stats: counters updated in place; status: STATUSTEXT sender."""
+    -> autopilot clock; stats: counters updated in place; status: STATUSTEXT sender; matcher: use this
+    matcher instead of the profile's (tests, embedding)."""
 
     def __init__(self, profile: Profile, options: DaemonOptions, clockmap: ClockMap, stats: FixCounters,
-                 status: StatusFn) -> None:
+                 status: StatusFn, matcher: Matcher | None = None) -> None:
         self.profile, self.opt = profile, options
         self.clockmap, self.stats, self.status = clockmap, stats, status
         self.ground_camera = GroundCamera.from_config(profile.camera)
         self.events: EventLog | None = None
         self.camera: CameraSource | None = None
+        self.guard: FrameGuard | None = None
         self.sat_map: Any = None
-        self.matcher: Any = None
+        self.matcher: Any = matcher
         self.service: Any = None
         self.worker: MatchWorker | None = None
+        self._results: queue.Queue[WorkResult] = queue.Queue()  # shared by replacement workers
+        self._stuck: list[MatchWorker] = []  # abandoned workers (matcher hung)
         self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
 
     # ------------------------------------------------------------------ lifecycle
@@ -75,6 +90,9 @@ class FixPipeline:
         p, opt = self.profile, self.opt
         self.events = events
         self.camera = open_camera(opt.camera, self.ground_camera) if opt.camera else None
+        if self.camera is not None:
+            self.guard = FrameGuard(self.ground_camera.width, self.ground_camera.height, opt.frame_max_gap_s,
+                                    check_frozen=not self.camera.noiseless)
         map_path = opt.map_path or (self.camera.mosaic_path if isinstance(self.camera, WorldSource) else None)
         if map_path is not None:
             from taco_mav.cvgl.satellite import SatelliteMap
@@ -83,7 +101,7 @@ class FixPipeline:
                                         in_memory_max_mb=p.map.in_memory_max_mb)
         if p.matcher == "emulator":
             log.warning("matcher 'emulator' draws fixes from the SIMSTATE true pose: simulation only")
-        if p.matcher == "emulator" or self.sat_map is not None:
+        if self.matcher is None and (p.matcher == "emulator" or self.sat_map is not None):
             from taco_mav.cvgl.registry import make_matcher
 
             self.matcher = make_matcher(p, truth=self._truth_at if p.matcher == "emulator" else None)
@@ -98,7 +116,8 @@ class FixPipeline:
             self.camera.start()
 
     def stop(self) -> None:
-        """Stop the worker thread and close the camera; a failure is logged and the other still stops."""
+        """Stop the worker thread (waiting at most 1 s: a hung matcher never blocks shutdown) and close the
+        camera; a failure is logged and the other still stops."""
         for name in ("worker", "camera"):
             obj = getattr(self, name, None)
             if obj is not None:
@@ -106,6 +125,11 @@ class FixPipeline:
                     obj.stop() if name == "worker" else obj.close()
                 except Exception:  # noqa: BLE001 - shutdown continues whatever failed
                     log.exception("stopping %s", name)
+
+    @property
+    def stuck(self) -> int:
+        """Abandoned matcher threads still inside the matcher."""
+        return sum(w.alive for w in self._stuck)
 
     def close(self) -> None:
         """Close the satellite map."""
@@ -121,8 +145,13 @@ class FixPipeline:
 
             self.service = FixService(self.matcher, self.sat_map, origin.utm, self.profile.map.crop_size_px,
                                       self.profile.map.crop_m_per_px)
-            self.worker = MatchWorker(self.service, self.opt.matcher_latency_s)
-            self.worker.start()
+            if self.worker is not None:
+                self.worker.stop(0.0)
+            self._new_worker()
+
+    def _new_worker(self) -> None:
+        self.worker = MatchWorker(self.service, self.opt.matcher_latency_s, self._results)
+        self.worker.start()
 
     def on_pose(self, t: float, pose: SimPose, origin: encoders.Origin | None) -> None:
         """SIMSTATE true pose at autopilot time t (s): drives a world camera and the emulator's truth."""
@@ -150,6 +179,7 @@ class FixPipeline:
         generation: the Localiser's generation, carried back with the result."""
         if loc is None:
             return
+        self._watchdog(loc)
         q = loc.poll_query()
         if q is None:
             return
@@ -157,19 +187,51 @@ class FixPipeline:
         fetch = self._frame_fetcher(q)
         if self.worker is None or fetch is None:
             loc.cancel_query(q.query_id)
-            self.stats.fixes["no_matcher" if self.worker is None else "no_camera"] += 1
+            reason = "no_camera" if fetch is None else "matcher_hung" if self.service is not None else "no_matcher"
+            self.stats.fixes[reason] += 1
             return
         if not self.worker.submit(q, fetch, generation):
             loc.cancel_query(q.query_id)
             self.stats.fixes["worker_busy"] += 1
 
-    def _frame_fetcher(self, q: FixQuery) -> Callable[[], GroundFrame | None] | None:
-        """A callable the worker runs to get the frame nearest the capture time (rendering happens there)."""
+    def _watchdog(self, loc: Localiser) -> None:
+        """Cancel a query the matcher has been on for longer than matcher_timeout_s (wall), abandon that
+        worker and start a fresh one (unless MAX_STUCK abandoned ones are still stuck)."""
+        self._stuck = [w for w in self._stuck if w.alive]
+        w = self.worker
+        job = w.running() if w is not None else None
+        if w is None and self.service is not None and len(self._stuck) < MAX_STUCK:
+            self._new_worker()  # a stuck thread came back: fixes resume
+            return
+        if w is None or job is None or time.monotonic() - job.started <= self.opt.matcher_timeout_s:
+            return
+        loc.cancel_query(job.query.query_id)
+        self.stats.fixes["matcher_timeout"] += 1
+        for q, _ in w.drop_waiting():
+            loc.cancel_query(q.query_id)
+            self.stats.fixes["worker_busy"] += 1
+        w.abandon()
+        self._stuck.append(w)
+        text = f"matcher timeout ({self.opt.matcher_timeout_s:.0f}s) on query {job.query.query_id}"
+        log.warning("%s; %d stuck matcher thread(s)", text, len(self._stuck))
+        assert self.events is not None
+        self.events.write("matcher_timeout", query_id=job.query.query_id, capture_t=job.query.capture_t,
+                          stuck=len(self._stuck))
+        self.status(SEV_WARNING, text, "matcher_timeout")
+        self.worker = None
+        if len(self._stuck) < MAX_STUCK:
+            self._new_worker()
+
+    def _frame_fetcher(self, q: FixQuery) -> FetchFn | None:
+        """A callable the worker runs to get the frame nearest the capture time (rendering happens there);
+        the frame guard vets it (FrameRejected with the reason)."""
         cam, gap = self.camera, self.opt.frame_max_gap_s
         if cam is None:
             if self.profile.matcher != "emulator":
                 return None
             return lambda: GroundFrame(np.zeros((0, 0, 3), np.uint8), q.capture_t, self.ground_camera)
+        guard = self.guard
+        assert guard is not None
         if cam.clock is ClockDomain.AUTOPILOT:
             t_src, back = q.capture_t, 0.0
         else:
@@ -178,20 +240,23 @@ class FixPipeline:
                 return None
             t_src, back = q.capture_t - off, off
 
-        def fetch() -> GroundFrame | None:
-            got = cam.frame_near(t_src, gap)
-            return None if got is None else GroundFrame(got[1], got[0] + back, self.ground_camera)
+        def fetch() -> GroundFrame:
+            t_frame, image = guard.check(cam.frame_near(t_src, max(gap, STALE_LOOK_S)), t_src)
+            return GroundFrame(image, t_frame + back, self.ground_camera)
 
         return fetch
 
     def drain(self, loc: Localiser | None, generation: int) -> None:
         """Apply every finished worker result to the Localiser (results of an older generation are dropped),
         log each as a "fix" event and report the gate decision by STATUSTEXT."""
-        if self.worker is None or loc is None:
+        if loc is None:
             return
         assert self.events is not None
-        while not self.worker.out.empty():
-            res: WorkResult = self.worker.out.get_nowait()
+        while True:
+            try:
+                res = self._results.get_nowait()
+            except queue.Empty:
+                return
             q = res.query
             if res.generation != generation:
                 self.stats.fixes["stale_generation"] += 1
@@ -199,9 +264,17 @@ class FixPipeline:
             if res.results is None:
                 loc.cancel_query(q.query_id)
                 self.stats.fixes[res.error or "error"] += 1
-                self.events.write("fix", query_id=q.query_id, capture_t=q.capture_t, error=res.error)
+                self.events.write("fix", query_id=q.query_id, capture_t=q.capture_t, error=res.error,
+                                  detail=res.detail)
+                self.status(SEV_NOTICE, f"no fix: {res.error}", "fix_error")
                 continue
-            out = loc.add_fix(q.query_id, res.results)
+            try:
+                out = loc.add_fix(q.query_id, res.results)
+            except Exception:  # noqa: BLE001 - a malformed answer must not stop the loop
+                log.exception("add_fix failed on query %d", q.query_id)
+                loc.cancel_query(q.query_id)
+                self.stats.fixes["fix_error"] += 1
+                continue
             self.stats.fixes[out.reason] += 1
             est = loc.estimate()
             self.events.write(
