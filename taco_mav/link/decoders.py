@@ -22,6 +22,7 @@ MAX_ACCEL = 16.0 * G0  # m/s^2: beyond a 16 g accelerometer's range
 MAX_GYRO = math.radians(2000.0)  # rad/s: beyond a 2000 deg/s gyro's range
 
 IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+UTM_LAT_MIN, UTM_LAT_MAX = -80.0, 84.0  # degrees: the daemon works on a UTM grid (geo.utm_epsg_for)
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +71,11 @@ class SimPose:
 
 def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
+
+
+def _on_utm_grid(lat: float, lon: float) -> bool:
+    """True for a position the daemon can project: UTM's latitude band, longitude in [-180, 180] degrees."""
+    return UTM_LAT_MIN <= lat <= UTM_LAT_MAX and -180.0 <= lon <= 180.0
 
 
 class Decoders:
@@ -133,7 +139,7 @@ class Decoders:
         return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi))
 
     def gnss(self, msg: Any) -> GnssReading | None:
-        """GPS_RAW_INT with a 3D fix (fix_type >= 3) -> GnssReading, or None (counted) otherwise."""
+        """GPS_RAW_INT with a 3D fix (fix_type >= 3) inside UTM's latitude band -> GnssReading, or None (counted)."""
         kind = msg.get_type()
         if int(msg.fix_type) < 3:
             self.reject(kind, "no_3d_fix")
@@ -141,6 +147,9 @@ class Decoders:
         lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lon == 0):
             self.reject(kind, "position_range")
+            return None
+        if not _on_utm_grid(lat, lon):
+            self.reject(kind, "outside_utm")  # polar: no UTM zone to work in
             return None
         speed = 0.0 if msg.vel == 65535 else msg.vel * 0.01
         course = None if msg.cog == 65535 else math.radians(msg.cog * 0.01)
@@ -150,7 +159,7 @@ class Decoders:
     def simstate(self, msg: Any) -> SimPose | None:
         """SIMSTATE -> the simulator's true pose, or None (counted)."""
         lat, lon, yaw = msg.lat * 1e-7, msg.lng * 1e-7, float(msg.yaw)
-        if not _finite(yaw) or not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lng == 0):
+        if not _finite(yaw) or not _on_utm_grid(lat, lon) or (msg.lat == 0 and msg.lng == 0):
             self.reject("SIMSTATE", "range")
             return None
         return SimPose(lat, lon, yaw)
