@@ -166,9 +166,11 @@ class PlusConfig:
     # Innovation gate (beside the yaw gate) and consensus over the crops.
     chi2_gate: float = field(default=13.82, metadata=_rng(0.0, open_lo=True))  # 2 dof, 99.9 %
     consensus_radius_m: float = field(default=3.0, metadata=_rng(0.0))
+    w_min: float = field(default=0.2, metadata=_rng(0.0, 1.0))  # weaker answers count as misses
     # Loss of lock and recovery.
     capture_radius_m: float = field(default=20.0, metadata=_rng(0.0, open_lo=True))  # FG2's, Sec. III-D
     lost_after: int = field(default=4, metadata=_rng(1))  # consecutive triggers without an accepted fix
+    lost_after_s: float = field(default=8.0, metadata=_rng(0.0))  # ... over at least this long since the last one
     lost_sigma_min_m: float = field(default=10.0, metadata=_rng(0.0))
     grid_spacing_m: float = field(default=15.0, metadata=_rng(0.0, open_lo=True))
     grid_max_rings: int = field(default=4, metadata=_rng(1, 10))

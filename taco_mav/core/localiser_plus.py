@@ -53,8 +53,9 @@ class PlusLocaliser(Localiser):
         self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0]), P0, params.ukf_alpha, params.ukf_beta,
                              params.ukf_kappa)
         self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2)
-        self.lock = LockMonitor(q.lost_after, q.capture_radius_m, q.confirm_fixes)
+        self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
         self._last_answer_t = -math.inf
+        self._zupt = False  # the last frame had a zero-velocity update
         self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
 
     # ------------------------------------------------------------------ IMU path
@@ -64,8 +65,12 @@ class PlusLocaliser(Localiser):
         super().add_imu(sample)
 
     def _open_tick(self, tick: _Tick) -> None:
+        # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot
+        # tell from zero (zupt_speed_max_mps plus 3 sigma of the speed error).
         q = self.q
-        tick.stationary = q.zupt and self.still.stationary and abs(self.pre.speed) <= q.zupt_speed_max_mps
+        gate = q.zupt_speed_max_mps + 3.0 * math.sqrt(max(float(self.ukf.P[3, 3]), 0.0))
+        tick.stationary = bool(q.zupt and self.still.stationary and abs(self.pre.speed) <= gate)
+        self._zupt = tick.stationary
 
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         inc = tick.inc
@@ -146,14 +151,13 @@ class PlusLocaliser(Localiser):
                 psi[k] = yaw_residual(r.R)
         w = np.array(weights)
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
-        usable = finite & (np.abs(psi) <= p.yaw_residual_max_rad) if p.yaw_gate else finite.copy()
-        if self.lock.state is LockState.LOST:
-            usable &= w >= qp.recover_w_min
+        with np.errstate(invalid="ignore"):
+            yaw_ok = (np.abs(psi) <= p.yaw_residual_max_rad) | (not p.yaw_gate)
+        usable = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
         c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m)
         self._last_fix_t = max(self._last_fix_t, now if p.apply_on_arrival else q.capture_t)
         if c is None:
-            reason = "nonfinite" if not finite.any() else ("yaw_gate" if self.lock.state is not LockState.LOST
-                                                           else "weak")
+            reason = "nonfinite" if not finite.any() else ("yaw_gate" if not (finite & yaw_ok).any() else "weak")
             self._failed(reason, 0.0)
             return self._log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
         k, z = c.index, c.xy
@@ -223,7 +227,7 @@ class PlusLocaliser(Localiser):
     def estimate(self) -> Estimate:
         est = super().estimate()
         est.extra.update(lock=self.lock.state.value, speed_error=float(self.ukf.x[3]), accel_bias=float(self.ukf.x[4]),
-                         stationary=self.still.stationary)
+                         stationary=self._zupt)
         return est
 
     @property

@@ -5,7 +5,8 @@ hexagonal grid sized by the inflated uncertainty), CONFIRMING (a relocalisation 
 in the reported uncertainty until `confirm_fixes` further fixes agree).
 
 Lock is declared lost after `lost_after` consecutive answered triggers without an accepted fix (misses, gate
-rejections, innovation rejections alike), or when the filter's 1-sigma exceeds a third of the capture radius
+rejections, innovation rejections alike) spanning at least `lost_after_s` seconds since the last accepted fix
+(a short run of confident, mutually consistent outliers must not outvote a good IMU), or when the filter's 1-sigma exceeds a third of the capture radius
 (3 sigma no longer fits inside one crop's capture). Events are kept as (t, kind, detail) for logs and counts.
 """
 
@@ -27,8 +28,10 @@ class LockMonitor:
     metres."""
 
     lost_after: int
+    lost_after_s: float
     capture_radius_m: float
     confirm_fixes: int
+    last_accept_t: float = 0.0
     state: LockState = LockState.LOCKED
     misses: int = 0
     attempts: int = 0  # failed recovery attempts since lock was lost
@@ -53,7 +56,8 @@ class LockMonitor:
             self.state, self.confirmations = LockState.LOST, 0
             self._event(t, "relock_failed", reason)
             return False
-        if self.state is LockState.LOCKED and self.misses >= self.lost_after:
+        if (self.state is LockState.LOCKED and self.misses >= self.lost_after
+                and t - self.last_accept_t >= self.lost_after_s):
             return self.declare_lost(t, f"{self.misses} triggers without a fix (last: {reason})")
         return False
 
@@ -72,13 +76,14 @@ class LockMonitor:
     def on_relocalised(self, t: float, jump_m: float) -> None:
         """A recovery candidate was applied (the estimate moved by jump_m)."""
         self.state, self.confirmations, self.jump_m, self.misses = LockState.CONFIRMING, 0, jump_m, 0
+        self.last_accept_t = t
         self._event(t, "relocalised", f"jump {jump_m:.1f} m")
         if self.confirm_fixes <= 0:
             self._locked(t)
 
     def on_accepted(self, t: float) -> None:
         """A fix passed every gate."""
-        self.misses = 0
+        self.misses, self.last_accept_t = 0, t
         if self.state is LockState.CONFIRMING:
             self.confirmations += 1
             if self.confirmations >= self.confirm_fixes:

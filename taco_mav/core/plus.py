@@ -51,10 +51,12 @@ class PlusParams:
     cross_max_m: float = 10.0
     # gating and consensus
     chi2_gate: float = 13.82  # 2-dof chi-square, 99.9 %
+    w_min: float = 0.2  # weaker answers count as misses
     consensus_radius_m: float = 3.0
     # loss of lock and recovery
     capture_radius_m: float = 20.0
     lost_after: int = 4  # consecutive triggers without an accepted fix
+    lost_after_s: float = 8.0  # ... spanning at least this long since the last accepted fix
     lost_sigma_min_m: float = 10.0
     grid_spacing_m: float = 15.0
     grid_max_rings: int = 4

@@ -1,0 +1,154 @@
+"""taco+ (issue 7) end to end on simulated drives: accuracy at fewer fixes, late fixes, the innovation gate,
+loss of lock and recovery, bias observability, zero-velocity updates."""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from helpers import OracleMatcher, simulate
+from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
+from taco_mav.core.lock import LockState
+from taco_mav.core.params import LocaliserParams
+from taco_mav.core.plus import PlusParams
+from taco_mav.core.types import MatchResult
+from test_localiser import _drive
+
+PLUS = LocaliserParams(plus=PlusParams())
+
+
+def run_plus(drive, params=PLUS, latency=0.0, matcher=None, planted=None, x0=0.0, y0=0.0, answer=True):
+    """Feed the drive through make_localiser; answers arrive `latency` s after capture. Returns (loc, err, sig)
+    with err/sig the true error and reported 1-sigma (m) at every filter frame."""
+    loc = make_localiser(params, 0.0, x0, y0, heading=float(drive.theta[0]), speed=float(drive.speed[0]))
+    matcher = matcher or OracleMatcher(drive, seed=2)
+    pending, err, sig = [], [], []
+    last_t = -1.0
+    for s in drive.samples:
+        loc.add_imu(s)
+        q = loc.poll_query()
+        if q is not None and answer:
+            pending.append((q.capture_t + latency, q))
+        while pending and pending[0][0] <= s.t + 1e-9:
+            _, q = pending.pop(0)
+            loc.add_fix(q.query_id, planted(q) if planted else matcher.answer(q))
+        if loc.t - last_t >= 0.1 - 1e-9:
+            last_t = loc.t
+            est = loc.estimate()
+            err.append(float(np.linalg.norm(est.xy - np.array(drive.pose_at(s.t)[:2]))))
+            sig.append(est.sigma_h)
+    return loc, np.array(err), np.array(sig)
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def test_make_localiser_picks_the_mode():
+    assert type(make_localiser(LocaliserParams(), 0.0)).__name__ == "Localiser"
+    assert isinstance(make_localiser(PLUS, 0.0), PlusLocaliser)
+
+
+def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
+    from test_localiser import run as run_paper
+
+    d = _drive()
+    paper, _ = run_paper(d, LocaliserParams())
+    loc, err, sig = run_plus(d)
+    _, err1, _ = run_plus(d, latency=1.0)
+    assert _rms(err) < 0.8
+    assert len(loc.queries) < 0.5 * len(paper.queries)
+    assert abs(_rms(err1) - _rms(err)) < 0.3  # rewind/replay keeps the speed feedback consistent
+    assert np.mean(err <= 3.0 * np.maximum(sig, 1e-3)) >= 0.95  # honest uncertainty
+    assert loc.lock.losses == 0
+
+
+def answers_at(q, world_xy: np.ndarray, w: float = 0.95, psi_res: float = 0.02) -> list[MatchResult]:
+    """Every crop of `q` answers that the vehicle is at `world_xy` (ENU m) with weight w: a silent outlier
+    when world_xy is wrong (the yaw residual passes the gate)."""
+    R = np.array([[math.cos(psi_res), -math.sin(psi_res)], [math.sin(psi_res), math.cos(psi_res)]])
+    c, s = math.cos(q.heading), math.sin(q.heading)
+    out = []
+    for centre in q.crop_centres:
+        rel = np.asarray(world_xy) - centre
+        out.append(MatchResult(R, np.array([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]]), w))
+    return out
+
+
+def test_planted_30m_silent_outlier_is_rejected():
+    d = _drive()
+    oracle = OracleMatcher(d, seed=2)
+    hits = []
+
+    def planted(q):
+        if 60.0 < q.capture_t < 64.0:  # high weight, small yaw residual, 30 m off, for 4 s
+            hits.append(q.query_id)
+            return answers_at(q, np.array(d.pose_at(q.capture_t)[:2]) + [30.0, 0.0])
+        return oracle.answer(q)
+
+    loc, err, _ = run_plus(d, planted=planted)
+    assert hits
+    reasons = {o.query_id: o.reason for o in loc.outcomes}
+    assert all(reasons[h] == "innovation_gate" for h in hits)
+    assert err.max() < 2.5
+    assert loc.lock.losses == 0
+
+
+def test_displaced_estimate_is_detected_and_recovered():
+    d = _drive()
+    loc, err, sig = run_plus(d, x0=40.0)  # the filter believes it starts 40 m east of the truth, sigma 1 cm
+    kinds = [k for _, k, _ in loc.lock_events]
+    assert kinds[0] == "lock_lost" and "recovered" in kinds
+    t_rec = next(t for t, k, _ in loc.lock_events if k == "recovered")
+    n_triggers = sum(1 for q in loc.queries if q.capture_t <= t_rec)
+    assert n_triggers <= 30 and t_rec <= 15.0
+    assert any(len(q.crop_centres) > 5 for q in loc.queries)  # the widened grid search ran
+    frames = np.arange(len(err)) * 0.1
+    assert err[frames > t_rec + 1.0].max() < 2.5
+    assert loc.lock.state is LockState.LOCKED
+
+
+def _biased(drive, bias: float):
+    """The drive's IMU with a constant forward accelerometer bias (m/s^2) added."""
+    samples = [dataclasses.replace(s, accel_frd=(s.accel_frd[0] + bias, *s.accel_frd[1:])) for s in drive.samples]
+    return dataclasses.replace(drive, samples=samples)
+
+
+def test_accelerometer_bias_is_observable_from_fixes():
+    d = _biased(_drive(), 0.08)
+    loc, err, _ = run_plus(d)
+    b = float(loc.ukf.x[4])
+    assert abs(b - 0.08) < 0.03
+    assert abs(loc.estimate().speed - d.speed[-1]) < 0.3
+    assert _rms(err[len(err) // 2:]) < 1.0
+
+
+def _stop_and_go():
+    """Drive at 8 m/s, stop at t = 24 s and stand; road vibration (0.3 m/s^2 at speed) while moving."""
+    speed = lambda t: min(8.0, 2.0 * t) if t < 20 else max(0.0, 8.0 - 2.0 * (t - 20))
+    d = simulate(speed, lambda t: 0.0, 90.0, accel_noise=0.01, gyro_noise=0.001, compass_noise=0.002, seed=3)
+    rng = np.random.default_rng(4)
+    samples = [dataclasses.replace(s, accel_frd=tuple(np.add(s.accel_frd, rng.normal(0, 0.3 * min(1.0, v / 2), 3))))
+               for s, v in zip(d.samples, d.speed)]
+    return dataclasses.replace(d, samples=samples)
+
+
+def test_zero_velocity_updates_hold_a_stopped_vehicle_without_fixes():
+    d = _biased(_stop_and_go(), 0.05)
+    with_zupt, err, _ = run_plus(d, answer=False)
+    no_zupt = LocaliserParams(plus=PlusParams(zupt=False))
+    without, err_nz, _ = run_plus(d, params=no_zupt, answer=False)
+    stopped = (np.arange(len(err)) * 0.1) > 30.0
+    assert err[stopped].max() - err[stopped].min() < 0.5  # the estimate stands still (it also learns the bias)
+    assert err[stopped].max() < 1.0
+    assert err_nz[stopped].max() - err_nz[stopped].min() > 5.0
+    assert with_zupt.estimate().speed < 0.05
+    assert with_zupt.estimate().extra["stationary"] is True
+
+
+def test_no_fix_run_grows_uncertainty_and_declares_loss_honestly():
+    d = _drive()
+    loc, err, sig = run_plus(d, planted=lambda q: [None] * len(q.crop_centres))
+    assert loc.lock.losses == 1
+    assert sig[-1] > sig[10]
+    assert all(isinstance(v, float) and math.isfinite(v) for v in sig)
