@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch", reason="the fg2 extra (torch) is not instal
 from taco_mav.camera_geometry import GroundCamera  # noqa: E402
 from taco_mav.config import CameraConfig, Fg2Config  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
-from taco_mav.cvgl.fg2 import Fg2Matcher, _to_result, load_model  # noqa: E402
+from taco_mav.cvgl.fg2 import Fg2Matcher, _to_result, load_model, pixel_from_level  # noqa: E402
 from taco_mav.cvgl.fg2_tiny import TinyFg2, save_tiny  # noqa: E402
 from taco_mav.errors import MatcherError  # noqa: E402
 
@@ -50,9 +50,10 @@ class CountingTiny(TinyFg2):
         super().__init__()
         self.ground_calls, self.batches = 0, []
 
-    def encode_ground(self, image, ground_from_pixel):  # type: ignore[no-untyped-def]
+    def encode_ground(self, image, ground_from_pixel, pixel_from_level):  # type: ignore[no-untyped-def]
         self.ground_calls += 1
-        return super().encode_ground(image, ground_from_pixel)
+        self.pixel_from_level = pixel_from_level
+        return super().encode_ground(image, ground_from_pixel, pixel_from_level)
 
     def match_aerial(self, feats, aerial, m_per_px):  # type: ignore[no-untyped-def]
         self.batches.append(aerial.shape[0])
@@ -91,6 +92,7 @@ def test_ground_encoded_once_per_trigger(tmp_path: Path) -> None:
     matcher.match(frame, crops)
     matcher.match(frame, crops)
     assert model.ground_calls == 2 and model.batches == [5, 5]
+    assert model.pixel_from_level.shape == (1, 3, 3)
     with pytest.raises(MatcherError, match="share size"):
         matcher.match(frame, crops[:4] + [Crop(np.zeros((64, 64, 3), np.uint8), np.zeros(2), 0.3, 0.4)])
 
@@ -105,3 +107,14 @@ def test_image_frame_to_crop_frame_conversion() -> None:
     assert math.atan2(r.R[1, 0], r.R[0, 0]) == pytest.approx(0.2)
     assert _to_result(R_img, np.array([np.nan, 0.0]), 0.7, 0.5, 0.0).w == pytest.approx(1e-3)
     assert _to_result(R_img, np.zeros(2), 0.0, 0.5, 0.0).w == pytest.approx(1e-3)
+
+
+def test_pixel_from_level_is_the_camera_projection_with_pitch() -> None:
+    """A ground point (forward f, left l) is (x, y, z) = (-l, h, f) in the level camera frame; K @ R_pitch must
+    project it where the flat-ground homography does, for a pitched camera too."""
+    cam = GroundCamera.from_config(CameraConfig(pitch_rad=0.08), scale=0.5)
+    P = pixel_from_level(cam)
+    for f, l in [(5.0, 0.0), (12.0, -3.0), (30.0, 8.0)]:
+        a = P @ np.array([-l, cam.mount_height_m, f])
+        b = cam.ground_to_image @ np.array([f, l, 1.0])
+        np.testing.assert_allclose(a[:2] / a[2], b[:2] / b[2], atol=1e-9)

@@ -2,16 +2,18 @@
 
 The model is any object with this interface (torch tensors, on the model's device):
 
-- `encode_ground(image, ground_from_pixel) -> feats`: image (1, 3, H, W) float in [0, 1] RGB;
+- `encode_ground(image, ground_from_pixel, pixel_from_level) -> feats`: image (1, 3, H, W) float in [0, 1] RGB;
   ground_from_pixel (1, 3, 3) the flat-ground homography from pixels (u, v, 1) to (forward, left, 1) metres
-  (`GroundCamera.image_to_ground`). Called ONCE per trigger; feats is opaque to the adapter.
+  (`GroundCamera.image_to_ground`); pixel_from_level (1, 3, 3) = K @ R_pitch, projecting points of the LEVEL
+  camera frame (x right, y down, z forward along the ground, metres, origin at the camera) to homogeneous pixels
+  (what FG2 calls camera_k, with the mount pitch folded in). Called ONCE per trigger; feats is opaque here.
 - `match_aerial(feats, aerial, m_per_px) -> (R_img, t_px, mass)`: aerial (B, 3, S, S) float in [0, 1], the
   heading-up crops; R_img (B, 2, 2) the rotation, in image coordinates (x right, y down), taking image-up to the
   vehicle's estimated heading; t_px (B, 2) the vehicle position in crop pixels (x right, y down) relative to the
   crop centre (S - 1) / 2; mass (B,) the Procrustes correspondence mass in [0, 1].
 
 `load_model(cfg)` builds it through `cfg.entry` ("module:function", called as fn(checkout, checkpoint, device))
-with the user's FG2 checkout on sys.path. `taco_mav.cvgl.fg2_tiny` is a small model with the same interface
+with the user's FG2 checkout on sys.path while the entry is imported and called (removed afterwards). `taco_mav.cvgl.fg2_tiny` is a small model with the same interface
 that the tests save and load through the same path. torch is imported lazily: without it, the package works and
 only this matcher raises MatcherError.
 """
@@ -58,7 +60,8 @@ def resolve_device(name: str) -> Any:
 
 
 def load_model(cfg: Fg2Config) -> Any:
-    """Import cfg.entry with cfg.checkout on sys.path and build the model from cfg.checkpoint (eval mode)."""
+    """Import cfg.entry with cfg.checkout on sys.path and build the model from cfg.checkpoint (eval mode); the
+    checkout leaves sys.path again once the model is built."""
     checkout, checkpoint = Path(cfg.checkout).expanduser(), Path(cfg.checkpoint).expanduser()
     if not cfg.checkout or not checkout.is_dir():
         raise MatcherError(f"fg2.checkout: FG2 checkout folder {str(checkout)!r} not found")
@@ -67,16 +70,21 @@ def load_model(cfg: Fg2Config) -> Any:
     module_name, _, fn_name = cfg.entry.partition(":")
     if not module_name or not fn_name:
         raise MatcherError(f"fg2.entry: {cfg.entry!r} is not 'module:function'")
-    if str(checkout) not in sys.path:
+    added = str(checkout) not in sys.path
+    if added:  # only while the entry is imported and builds the model
         sys.path.insert(0, str(checkout))
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise MatcherError(f"fg2.entry: cannot import {module_name!r} (checkout {checkout}): {exc}") from None
-    build = getattr(module, fn_name, None)
-    if build is None:
-        raise MatcherError(f"fg2.entry: module {module_name!r} has no {fn_name!r}")
-    model = build(checkout, checkpoint, resolve_device(cfg.device))
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            raise MatcherError(f"fg2.entry: cannot import {module_name!r} (checkout {checkout}): {exc}") from None
+        build = getattr(module, fn_name, None)
+        if build is None:
+            raise MatcherError(f"fg2.entry: module {module_name!r} has no {fn_name!r}")
+        model = build(checkout, checkpoint, resolve_device(cfg.device))
+    finally:
+        if added and str(checkout) in sys.path:
+            sys.path.remove(str(checkout))
     if hasattr(model, "eval"):
         model.eval()
     log.info("fg2 model %s loaded from %s", type(model).__name__, checkpoint)
@@ -98,6 +106,8 @@ class Fg2Matcher:
         self.device = params[0].device if params else resolve_device(cfg.device)
         self._ground_from_pixel = torch.as_tensor(camera.image_to_ground, dtype=torch.float32,
                                                   device=self.device)[None]
+        self._pixel_from_level = torch.as_tensor(pixel_from_level(camera), dtype=torch.float32,
+                                                 device=self.device)[None]
 
     def _autocast(self) -> Any:
         torch = _torch()
@@ -120,7 +130,7 @@ class Fg2Matcher:
         with torch.inference_mode(), self._autocast():
             image = torch.from_numpy(np.ascontiguousarray(frame.image)).to(self.device)
             image = image.permute(2, 0, 1)[None].float() / 255.0
-            feats = self.model.encode_ground(image, self._ground_from_pixel)
+            feats = self.model.encode_ground(image, self._ground_from_pixel, self._pixel_from_level)
             aerial = torch.from_numpy(np.stack([c.image for c in crops])).to(self.device)
             aerial = aerial.permute(0, 3, 1, 2).float() / 255.0
             R_img, t_px, mass = self.model.match_aerial(feats, aerial, m_per_px)
@@ -131,6 +141,13 @@ class Fg2Matcher:
         t_np = t_px.float().cpu().numpy().reshape(len(crops), 2)
         m_np = mass.float().cpu().numpy().reshape(len(crops))
         return [_to_result(R_np[i], t_np[i], float(m_np[i]), m_per_px, elapsed) for i in range(len(crops))]
+
+
+def pixel_from_level(camera: GroundCamera) -> np.ndarray:
+    """3x3 K @ R_pitch: level camera frame (x right, y down, z forward horizontal; metres) -> homogeneous pixels.
+    A camera pitched down by p sees a level-frame point X at R_pitch X (rotation about the x axis by p)."""
+    c, s = math.cos(camera.pitch_rad), math.sin(camera.pitch_rad)
+    return camera.K @ np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def _to_result(R_img: np.ndarray, t_px: np.ndarray, mass: float, m_per_px: float, elapsed: float) -> MatchResult:

@@ -14,6 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from taco_mav.cvgl.procrustes import weighted_procrustes_2d
 from taco_mav.errors import MatcherError
 
 STRIDE = 8  # pixels per feature cell in both encoders
@@ -32,8 +33,10 @@ class TinyFg2(nn.Module):
         self.ground = _encoder(dim)
         self.aerial = _encoder(dim)
 
-    def encode_ground(self, image: torch.Tensor, ground_from_pixel: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(1, 3, H, W) -> BEV descriptors (N, D) and BEV points (N, 2) as (forward, left) metres."""
+    def encode_ground(self, image: torch.Tensor, ground_from_pixel: torch.Tensor,
+                      pixel_from_level: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(1, 3, H, W) -> BEV descriptors (N, D) and BEV points (N, 2) as (forward, left) metres (lifted through
+        the flat-ground homography; pixel_from_level is not used)."""
         f = self.ground(image)[0]  # (D, h, w)
         _, h, w = f.shape
         v, u = torch.meshgrid(torch.arange(h, device=f.device), torch.arange(w, device=f.device), indexing="ij")
@@ -63,16 +66,7 @@ class TinyFg2(nn.Module):
         q = prob @ cells  # (B, N, 2) expected aerial position of each BEV point
         wgt = prob.max(dim=2).values  # (B, N)
         p = torch.stack([-pts[:, 1], -pts[:, 0]], -1) / m_per_px  # BEV points in crop pixels (x right, y down)
-        wsum = wgt.sum(1, keepdim=True).clamp_min(1e-12)
-        p_bar = (wgt[..., None] * p).sum(1) / wsum
-        q_bar = (wgt[..., None] * q).sum(1) / wsum
-        pc, qc = p[None] - p_bar[:, None], q - q_bar[:, None]
-        cross = (wgt * (pc[..., 0] * qc[..., 1] - pc[..., 1] * qc[..., 0])).sum(1)
-        dot = (wgt * (pc[..., 0] * qc[..., 0] + pc[..., 1] * qc[..., 1])).sum(1)
-        ang = torch.atan2(cross, dot)
-        c, s = torch.cos(ang), torch.sin(ang)
-        R = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, 2, 2)
-        t = q_bar - (R @ p_bar[..., None])[..., 0]
+        R, t, _ = weighted_procrustes_2d(p, q, wgt)
         return R, t, wgt.mean(1)
 
 
