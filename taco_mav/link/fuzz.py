@@ -121,6 +121,7 @@ class _Episode:
         self.sent = 0
         self.mutations: Counter[str] = Counter()
         self.stalls = 0
+        self.empty = 0
         self.t0_wall, self.t0_stream = time.monotonic(), self.stream.t
 
     def pace(self) -> None:
@@ -134,7 +135,10 @@ class _Episode:
     def send(self, datagrams: list[bytes], valid: bool) -> None:
         for d in datagrams:
             self.sock.sendto(d, self.dest)
-            self.sent += 1
+            if d:
+                self.sent += 1
+            else:
+                self.empty += 1  # an empty datagram reads as "nothing there": not counted as sent
             if valid:
                 self.mutator.recent.append(d)
         self._drain()
@@ -233,7 +237,7 @@ def run_episode(imu_kind: str, frames: int, seed: int, opt: FuzzOptions) -> dict
     summary = d.summary()
     link = d.link
     return {
-        "imu_kind": imu_kind, "fuzz_frames": frames, "datagrams_sent": ep.sent,
+        "imu_kind": imu_kind, "fuzz_frames": frames, "datagrams_sent": ep.sent, "empty_datagrams_sent": ep.empty,
         "datagrams_read": link.datagrams if link else 0, "anchored": anchored,
         "crashed": not alive or d.exit_code != 0 or not stopped, "escaped_exceptions": escaped,
         "mutations": dict(ep.mutations), "outputs": dict(ep.outputs.by_type),
