@@ -1,8 +1,9 @@
 """Stationary detection for zero-velocity updates (taco+, issue 7).
 
 The vehicle is taken as stationary when, over the last `window_s` seconds of IMU samples, the largest gyro
-rate stays below `gyro_max` (rad/s) and the specific-force magnitude varies by less than `accel_std_max`
-(m/s^2, 1-sigma): an engine idling on a stopped rover shakes the accelerometer less than driving does.
+rate stays below `gyro_max` (rad/s) and the specific force varies by less than `accel_std_max` (m/s^2: the
+root of the summed per-axis variances, so horizontal vibration counts as much as vertical): an engine idling
+on a stopped rover shakes the accelerometer less than driving does.
 """
 
 from __future__ import annotations
@@ -18,11 +19,11 @@ class StationaryDetector:
         self.window_s = window_s
         self.gyro_max = gyro_max
         self.accel_std_max = accel_std_max
-        self._samples: deque[tuple[float, float, float]] = deque(maxlen=4096)  # t, |f|, |omega|
+        self._samples: deque[tuple[float, tuple[float, float, float], float]] = deque(maxlen=4096)  # t, f, |omega|
 
     def add(self, t: float, accel: tuple[float, float, float], gyro: tuple[float, float, float]) -> None:
         """t: seconds; accel: specific force, m/s^2; gyro: rad/s (any body frame)."""
-        self._samples.append((t, math.sqrt(sum(a * a for a in accel)), math.sqrt(sum(g * g for g in gyro))))
+        self._samples.append((t, tuple(accel), math.sqrt(sum(g * g for g in gyro))))
         while self._samples and self._samples[0][0] < t - self.window_s:
             self._samples.popleft()
 
@@ -34,6 +35,8 @@ class StationaryDetector:
         if max(g for _, _, g in s) > self.gyro_max:
             return False
         n = len(s)
-        mean = sum(f for _, f, _ in s) / n
-        var = sum((f - mean) ** 2 for _, f, _ in s) / (n - 1)
+        var = 0.0
+        for axis in range(3):
+            mean = sum(f[axis] for _, f, _ in s) / n
+            var += sum((f[axis] - mean) ** 2 for _, f, _ in s) / (n - 1)
         return math.sqrt(var) <= self.accel_std_max

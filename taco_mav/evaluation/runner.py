@@ -17,7 +17,7 @@ import numpy as np
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
 from taco_mav.core.localiser import FixOutcome, Localiser
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery
@@ -133,5 +133,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         matcher_s=service.stats.matcher_s, wall_s=time.perf_counter() - wall0, origin_utm=origin,
         utm_epsg=int(drive.utm_epsg), mosaic=str(drive.mosaic) if drive.mosaic else None,
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
-               "convergence_rad": convergence if math.isfinite(convergence) else 0.0},
+               "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
+               "lock_events": loc.lock_events if isinstance(loc, PlusLocaliser) else []},
     )

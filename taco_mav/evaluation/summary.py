@@ -56,6 +56,9 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "p95_error_m": _num(float(np.percentile(err["online"], 95))),
         "imu_only_drift_m_per_km": _num(per_km(rmse(err["imu_only"]))),
         "rejected": dict(sorted(reasons.items())),
+        "honest_fraction": _num(honest_fraction(err["online"], run.online_var)),
+        "lock_losses": sum(1 for _, kind, _ in run.extra.get("lock_events", []) if kind == "lock_lost"),
+        "lock_recoveries": sum(1 for _, kind, _ in run.extra.get("lock_events", []) if kind == "recovered"),
         "loop_closures": len(run.smoothed.loop_closures) if run.smoothed is not None else 0,
         "search_centre_error_median_m": _num(float(np.median(run.extra["search_centre_errors"])))
         if run.extra.get("search_centre_errors") else None,
@@ -63,6 +66,14 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "duration_s": _num(float(run.t[-1] - run.t[0])),
         "wall_s": _num(run.wall_s),
     }
+
+
+def honest_fraction(err: np.ndarray, var: np.ndarray) -> float:
+    """Fraction of frames whose true error (m) is within 3 reported 1-sigma (sqrt of the largest eigenvalue
+    of the position covariance; var columns Pxx, Pxy, Pyy in m^2)."""
+    pxx, pxy, pyy = var[:, 0], var[:, 1], var[:, 2]
+    lam = 0.5 * (pxx + pyy) + np.sqrt(0.25 * (pxx - pyy) ** 2 + pxy**2)
+    return float(np.mean(err <= 3.0 * np.sqrt(np.maximum(lam, 0.0)))) if len(err) else float("nan")
 
 
 def summary(per_seq: dict[str, dict[str, Any]]) -> dict[str, Any]:

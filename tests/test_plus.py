@@ -1,0 +1,105 @@
+"""taco+ building blocks: process noise, search patterns, consensus, the lock state machine, stationary
+detection, the 5-state filter."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taco_mav.core.lock import LockMonitor, LockState
+from taco_mav.core.plus import PlusParams, consensus, cross_arm, grid_rings, hex_offsets, process_noise_plus
+from taco_mav.core.stationary import StationaryDetector
+from taco_mav.core.ukf import PlanarUkf
+
+
+def test_process_noise_grows_with_time_and_distance_in_the_body_frame():
+    p = PlusParams(q_pos_mps=0.0, q_fwd_per_m=0.01, q_lat_per_m=0.02)
+    Q = process_noise_plus(math.pi / 2, 0.1, 10.0, p)  # heading north: forward = +y
+    assert Q.shape == (5, 5)
+    assert Q[1, 1] == pytest.approx(0.01)  # (0.01 * 10)^2 along track
+    assert Q[0, 0] == pytest.approx(0.04)  # (0.02 * 10)^2 cross track
+    assert Q[3, 3] == pytest.approx(p.q_speed_mps**2 * 0.1)
+    assert np.all(np.linalg.eigvalsh(Q) >= -1e-15)
+
+
+@pytest.mark.parametrize("rings", [1, 2, 3, 4])
+def test_hex_grid_covers_its_disc(rings: int):
+    spacing = 15.0
+    pts = hex_offsets(rings, spacing)
+    assert len(pts) == 1 + 3 * rings * (rings + 1)
+    assert len(np.unique(np.round(pts, 6), axis=0)) == len(pts)
+    rng = np.random.default_rng(0)
+    r = rings * spacing * np.sqrt(rng.uniform(0, 1, 2000)) * 0.999
+    a = rng.uniform(0, 2 * np.pi, 2000)
+    probe = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    nearest = np.min(np.linalg.norm(probe[:, None] - pts[None], axis=-1), axis=1)
+    # inside the outer ring's hexagon every point is within spacing / sqrt(3); near its corners, spacing
+    assert np.percentile(nearest, 90) <= spacing / math.sqrt(3) + 1e-6
+    assert nearest.max() <= spacing + 1e-6
+
+
+def test_search_sizes_follow_the_uncertainty():
+    p = PlusParams()
+    assert cross_arm(0.1, p) == p.cross_min_m
+    assert cross_arm(100.0, p) == p.cross_max_m
+    assert grid_rings(1.0, p) == 1
+    assert grid_rings(20.0, p) == 4
+    assert grid_rings(1000.0, p) == p.grid_max_rings
+
+
+def test_consensus_prefers_the_agreeing_cluster_over_the_single_heaviest():
+    xy = np.array([[0.0, 0.0], [0.5, 0.2], [0.3, -0.4], [25.0, 3.0], [9.0, 9.0]])
+    w = np.array([0.6, 0.6, 0.5, 0.9, 0.7])
+    usable = np.array([True, True, True, True, False])
+    c = consensus(xy, w, usable, 3.0)
+    assert c is not None and c.index == 0 and c.support == 3
+    assert np.allclose(c.xy, (w[:3, None] * xy[:3]).sum(0) / w[:3].sum())
+    assert consensus(xy, w, np.zeros(5, bool), 3.0) is None
+
+
+def test_lock_monitor_needs_misses_and_time_then_confirmations():
+    m = LockMonitor(lost_after=3, lost_after_s=5.0, capture_radius_m=20.0, confirm_fixes=2)
+    for t in (1.0, 2.0, 3.0):
+        assert not m.on_failure(t, "weak")  # three misses, but only 3 s since the last fix
+    assert m.on_failure(5.5, "weak") and m.state is LockState.LOST and m.losses == 1
+    m.on_failure(6.0, "weak")
+    assert m.attempts == 1
+    m.on_relocalised(7.0, 35.0)
+    assert m.state is LockState.CONFIRMING
+    m.on_accepted(7.5)
+    assert m.state is LockState.CONFIRMING
+    m.on_accepted(8.0)
+    assert m.state is LockState.LOCKED and m.recoveries == 1
+    assert [k for _, k, _ in m.events] == ["lock_lost", "relocalised", "recovered"]
+    assert m.on_uncertainty(9.0, 7.0) and m.state is LockState.LOST  # 3 sigma = 21 m > capture radius
+
+
+def test_stationary_detector():
+    det = StationaryDetector(1.0, 0.02, 0.05)
+    rng = np.random.default_rng(0)
+    for k in range(100):
+        det.add(k * 0.01, tuple(np.array([0.0, 0.0, -9.81]) + rng.normal(0, 0.01, 3)), (0.0, 0.0, 0.001))
+    assert det.stationary
+    det.add(1.0, (0.0, 0.0, -9.81), (0.0, 0.0, 0.1))  # turning
+    assert not det.stationary
+    shaky = StationaryDetector(1.0, 0.02, 0.05)
+    for k in range(100):
+        shaky.add(k * 0.01, (rng.normal(0, 0.3), 0.0, -9.81), (0.0, 0.0, 0.0))
+    assert not shaky.stationary
+
+
+def test_five_state_motion_uses_speed_error_and_bias():
+    P0 = np.diag([1e-4, 1e-4, 1e-6, 1.0, 1e-8])
+    f = PlanarUkf(np.array([0.0, 0.0, 0.0, 0.5, 0.1]), P0)
+    Q = np.diag([1e-9] * 5)
+    f.predict(1.0, 0.0, 0.0, Q, dt=0.1)
+    assert f.P[0, 3] > 0.05  # position and speed error are correlated after one step
+    # forward = 1.0 + 0.5 * 0.1 - 0.5 * 0.1 * 0.01 ; dv = 0.5 - 0.1 * 0.1
+    assert f.x[0] == pytest.approx(1.0 + 0.05 - 0.0005, abs=1e-6)
+    assert f.x[3] == pytest.approx(0.49, abs=1e-9)
+    f.update_speed_error(0.0, 0.01)
+    assert abs(f.x[3]) < 0.01
+    with pytest.raises(ValueError):
+        PlanarUkf(np.zeros(4), np.eye(4))
+    with pytest.raises(ValueError):
+        PlanarUkf(np.zeros(3), np.eye(3)).update_speed_error(0.0, 0.1)
