@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import socket
 import time
 from pathlib import Path
 
@@ -61,3 +62,28 @@ def test_ekf3_gate_warnings() -> None:
     assert ekf3_gate_warnings(10, 2.0, 0.5) == []
     w = ekf3_gate_warnings(5, 1.0, 3.0)
     assert len(w) == 3 and "satellites_visible=5" in w[0]
+
+
+def test_udp_datagrams_parsed_alone_and_refusals_counted() -> None:
+    """A truncated frame does not swallow the next datagram's frame; every refused frame is counted by reason."""
+    port = free_udp_port()
+    link = Link(f"udpin:127.0.0.1:{port}", sysid=0, compid=191)
+    tx = mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    frame = bytes(tx.raw_imu_encode(1_000_000, 0, 0, -1000, 0, 0, 0, 0, 0, 0).pack(tx))
+    bad_crc = frame[:-1] + bytes([frame[-1] ^ 0x55])
+    unknown = bytes([0xFD, 3, 0, 0, 0, 1, 1, 0x39, 0x30, 0x00, 1, 2, 3, 0, 0])  # msgid 12345
+    sent = [frame[:12], frame, bad_crc, unknown, b"\x01\x02\x03", frame + frame]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            for d in sent:
+                s.sendto(d, ("127.0.0.1", port))
+            got: list = []
+            deadline = time.monotonic() + 3
+            while link.datagrams < len(sent) and time.monotonic() < deadline:
+                got += link.recv(0.05)
+            got += link.recv(0.05)
+        finally:
+            link.close()
+    assert [g.get_type() for g in got] == ["RAW_IMU"] * 3 and link.received == 3 and link.datagrams == len(sent)
+    assert dict(link.rejected) == {"MAVLINK:truncated": 1, "MAVLINK:bad_crc": 1, "MAVLINK:unknown_id": 1,
+                                   "MAVLINK:bad_prefix": 1}

@@ -83,3 +83,15 @@ def test_simstate_pose() -> None:
     d = Decoders()
     p = d.simstate(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, -353632610, 1491652300)))
     assert p.lat == pytest.approx(-35.363261) and p.lon == pytest.approx(149.16523) and p.yaw == pytest.approx(0.5)
+
+
+def test_positions_outside_utm_band_rejected() -> None:
+    """The daemon works on a UTM grid: polar fixes (and SIMSTATE poses) are refused, never projected."""
+    d = Decoders()
+    assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 850_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is None
+    assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, -805_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is None
+    assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 839_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is not None
+    assert d.simstate(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, 890_000_000, 1))) is None
+    assert dict(d.rejected) == {"GPS_RAW_INT:outside_utm": 2, "SIMSTATE:range": 1}
+    d.reject("RAW_IMU", "foreign_source")
+    assert d.rejected["RAW_IMU:foreign_source"] == 1
