@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from taco_mav.config import load_profile, replace_in
+from taco_mav.config import Estimator, load_profile, replace_in
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from taco_mav.sim import Simulator
 from tests.sim_helpers import free_udp_port
@@ -21,7 +21,7 @@ DRIVE_0005 = ("2011_09_26", "2011_09_26_drive_0005_sync")
 
 def run_live(drive: Path, profile: str, *, speed: float, camera: str | None = None, matcher: str | None = None,
              lockstep: bool = False, duration_s: float | None = None, latency_s: float = 0.0,
-             log_dir: Path | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+             log_dir: Path | None = None, estimator: str = "paper") -> tuple[dict[str, Any], dict[str, Any]]:
     """Play `drive` to an in-process daemon; returns (the drive's results.json entry, the daemon summary)."""
     port = free_udp_port()
     sim = Simulator(drive, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=lockstep, duration_s=duration_s,
@@ -30,7 +30,8 @@ def run_live(drive: Path, profile: str, *, speed: float, camera: str | None = No
     if matcher is not None:
         prof = replace_in(prof, "matcher", matcher)
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=camera, matcher_latency_s=latency_s,
-                                        log_dir=log_dir), clock=sim.clock, wall_clock=sim.utc_now)
+                                        log_dir=log_dir, estimator=Estimator(estimator)),
+                    clock=sim.clock, wall_clock=sim.utc_now)
     daemon.start()
     try:
         sim.start()
@@ -77,6 +78,20 @@ def test_live_kitti_emulator(kitti_root: Path) -> None:
     assert seq["fix_type_counts"].get("3", 0) >= 0.95 * seq["gps_input_count"]
     assert seq["ate_m"] < 3.0
     assert summary["fixes"].get("accepted", 0) >= 3
+
+
+def test_live_kitti_taco_plus_passes_ekf3_gates(kitti_root: Path) -> None:
+    """taco+ on drive 0005 through the daemon: the reported accuracy is small and honest, so ArduPilot's EKF3
+    quality gates (hacc, HDOP) pass for most updates, unlike paper mode's sigma_fwd >= 1 m per frame."""
+    drive = kitti_root.joinpath(*DRIVE_0005)
+    if not drive.is_dir():
+        pytest.skip(f"{drive} absent")
+    seq, summary = run_live(drive, "kitti", speed=5.0, matcher="emulator", estimator="taco+", lockstep=True)
+    paper, _ = run_live(drive, "kitti", speed=5.0, matcher="emulator", lockstep=True)
+    assert_autopilot_accepts_rate(seq)
+    assert seq["ate_m"] < 1.5
+    assert seq["ekf_gate_pass_fraction"] >= 0.9 > paper["ekf_gate_pass_fraction"]
+    assert summary["fixes"].get("accepted", 0) >= 2
 
 
 def _fix_delays(log_dir: Path) -> list[float]:
