@@ -9,7 +9,6 @@ Frames and units: the drive is ENU metres from the origin (tests/helpers.simulat
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -51,7 +50,6 @@ class TruthMatcher:
                  fault: Callable[[int], object] | None = None) -> None:
         self.drive, self.origin, self.fault = drive, origin, fault
         self.calls = 0
-        self.release = threading.Event()  # a hanging fault may wait on this
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         call, self.calls = self.calls, self.calls + 1
@@ -87,6 +85,8 @@ class PipelineRun:
     t: np.ndarray
     sigma: np.ndarray
     errors: np.ndarray  # |estimate - truth| m at the same times
+    matcher: TruthMatcher
+    stop_s: float  # wall seconds FixPipeline.stop took
 
 
 def straight_drive(duration_s: float, speed: float = 5.0, theta0: float = 0.3) -> SimDrive:
@@ -98,7 +98,8 @@ def run_pipeline(profile: Profile, drive: SimDrive, matcher_fault: Callable[[int
                  camera: str | None = None, map_path: Path | None = None, wait_s: float = 3.0,
                  matcher_timeout_s: float = 10.0, step_sleep_s: float = 0.0) -> PipelineRun:
     """Play `drive` into a Localiser; the pipeline answers its queries in its worker thread. After each
-    submitted query the loop waits up to wait_s (wall) for the answer, so the run is deterministic."""
+    submitted query the loop waits up to wait_s (wall) for the answer, so the run is deterministic; matcher_fault:
+    see TruthMatcher; camera: a --camera spec; map_path: a GeoTIFF (crops off it are None)."""
     origin = Origin.from_latlon(ORIGIN_LAT, ORIGIN_LON, 100.0)
     matcher = TruthMatcher(drive, origin, matcher_fault)
     opts = DaemonOptions(connect="udpin:127.0.0.1:1", camera=camera, map_path=map_path,
@@ -118,7 +119,7 @@ def run_pipeline(profile: Profile, drive: SimDrive, matcher_fault: Callable[[int
             pipe.drain(loc, 1)
             asked = stats.queries
             pipe.poll(loc, 1)
-            if stats.queries > asked and wait_s > 0:
+            if stats.queries > asked and loc.query_in_flight and wait_s > 0:  # submitted, not cancelled
                 deadline = time.monotonic() + wait_s
                 while pipe._results.empty() and time.monotonic() < deadline:
                     time.sleep(0.001)
@@ -132,9 +133,11 @@ def run_pipeline(profile: Profile, drive: SimDrive, matcher_fault: Callable[[int
                 sig.append(est.sigma_h)
                 err.append(math.hypot(est.xy[0] - x, est.xy[1] - y))
     finally:
+        t0 = time.monotonic()
         pipe.stop()
+        stop_s = time.monotonic() - t0
         pipe.close()
-    return PipelineRun(pipe, loc, stats, texts, np.array(ts), np.array(sig), np.array(err))
+    return PipelineRun(pipe, loc, stats, texts, np.array(ts), np.array(sig), np.array(err), matcher, stop_s)
 
 
 def write_folder(folder: Path, images: Sequence[np.ndarray | bytes], rate_hz: float = 10.0) -> Path:

@@ -212,7 +212,7 @@ class FixPipeline:
             self.stats.fixes["worker_busy"] += 1
         w.abandon()
         self._stuck.append(w)
-        text = f"matcher timeout ({self.opt.matcher_timeout_s:.0f}s) on query {job.query.query_id}"
+        text = f"matcher timeout ({self.opt.matcher_timeout_s:.1f}s) on query {job.query.query_id}"
         log.warning("%s; %d stuck matcher thread(s)", text, len(self._stuck))
         assert self.events is not None
         self.events.write("matcher_timeout", query_id=job.query.query_id, capture_t=job.query.capture_t,
