@@ -126,7 +126,7 @@ def _sim_table(name: str, seq: dict) -> str:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from taco_mav.demo import run_demo
 
-    res = run_demo(Path(args.out), progress=not args.quiet, speed=args.speed)
+    res = run_demo(Path(args.out), progress=not args.quiet, speed=args.speed, estimator=args.estimator)
     print(_sim_table(res.drive, res.results))
     fixes = res.daemon.get("fixes", {})
     print(f"{'CVGL fixes accepted':28s} {fixes.get('accepted', 0)} of {sum(fixes.values())} answered")
@@ -201,6 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", parents=[common], help="synthetic world + simulator + daemon on loopback, one command")
     p.add_argument("--out", default="taco_demo", help="output folder (default ./taco_demo; the world is reused)")
+    p.add_argument("--estimator", choices=("paper", "taco+"), default="paper", help="estimator mode (default paper)")
     p.add_argument("--speed", type=float, default=8.0, help="real-time factor (default 8)")
     p.set_defaults(func=_cmd_demo)
     return parser

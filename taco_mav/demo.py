@@ -67,9 +67,10 @@ def demo_world(out: Path, progress: bool = True) -> Path:
     return build_world(world, seed=DEMO_SEED, length_km=DEMO_LENGTH_KM, progress=progress)
 
 
-def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None) -> DemoResult:
+def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None,
+             estimator: str = "paper") -> DemoResult:
     """Run the demo into `out` (see the module docstring); returns what it measured and wrote."""
-    from taco_mav.config import load_profile
+    from taco_mav.config import Estimator, load_profile
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
@@ -82,7 +83,8 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=True, duration_s=duration_s,
                     wait_companion_s=20.0, drain_s=0.3)
     daemon = Daemon(load_profile("synthetic"),
-                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=out / "daemon"),
+                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=out / "daemon",
+                                  estimator=Estimator(estimator)),
                     clock=sim.clock, wall_clock=sim.utc_now)
     daemon.start()
     try:

@@ -29,9 +29,6 @@ def test_no_crash_no_escaped_exception(report: dict) -> None:
     assert all(not e["escaped_exceptions"] for e in report["episodes"])
 
 
-@pytest.mark.xfail(strict=True, reason="bug outside the link files: requests.ParamCheck.on_message does "
-                   "int(round(param_value)) on a PARAM_VALUE whose param_value is inf/NaN -> OverflowError/ValueError "
-                   "caught by the loop as handler_error; fix there (skip non-finite values), then drop this mark")
 def test_no_handler_errors(report: dict) -> None:
     assert report["handler_errors"] == 0
     assert not [k for k in report["logged_exceptions"] if k.startswith("taco_mav.link.daemon")]

@@ -6,6 +6,7 @@ sends what is due, `on_message(msg)` consumes answers."""
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -136,7 +137,11 @@ class ParamCheck:
         pid = pid.rstrip("\x00")
         if pid not in self.names:
             return None
-        self.value, self.answered_by = float(msg.param_value), pid
+        value = float(msg.param_value)
+        if not math.isfinite(value):  # a corrupt answer: keep asking
+            log.warning("PARAM_VALUE %s is not finite (%r): ignored", pid, value)
+            return None
+        self.value, self.answered_by = value, pid
         if int(round(self.value)) != GPS_TYPE_MAV:
             text = f"{pid}={int(round(self.value))}, GPS_INPUT needs {pid}=14 (MAV): it will be ignored"
             self.warnings.append(text)
