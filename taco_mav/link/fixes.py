@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import threading
 import time
 from collections import Counter, deque
 from typing import TYPE_CHECKING, Any, Callable, Protocol
@@ -83,6 +84,7 @@ class FixPipeline:
         self._results: queue.Queue[WorkResult] = queue.Queue()  # shared by replacement workers
         self._stuck: list[MatchWorker] = []  # abandoned workers (matcher hung)
         self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
+        self._truth_lock = threading.Lock()  # appended by the loop thread, searched by the matcher worker
 
     # ------------------------------------------------------------------ lifecycle
     def open(self, events: EventLog) -> None:
@@ -160,17 +162,20 @@ class FixPipeline:
         if origin is not None:
             e, n = origin.projector.to_utm(pose.lat, pose.lon)
             theta = math.pi / 2 - pose.yaw + origin.convergence
-            self._truth.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
+            with self._truth_lock:
+                self._truth.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
 
     def clear_truth(self) -> None:
         """Forget the SIMSTATE poses (the autopilot clock restarted)."""
-        self._truth.clear()
+        with self._truth_lock:
+            self._truth.clear()
 
     def _truth_at(self, t: float) -> tuple[float, float, float]:
         """SIMSTATE pose nearest autopilot time t: absolute UTM E, N metres and grid heading (emulator only)."""
-        if not self._truth:
-            raise RuntimeError("no SIMSTATE received: the emulator matcher needs the simulator's true pose")
-        best = min(self._truth, key=lambda s: abs(s[0] - t))
+        with self._truth_lock:
+            if not self._truth:
+                raise RuntimeError("no SIMSTATE received: the emulator matcher needs the simulator's true pose")
+            best = min(self._truth, key=lambda s: abs(s[0] - t))
         return best[1], best[2], best[3]
 
     # ------------------------------------------------------------------ queries and fixes
