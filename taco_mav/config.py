@@ -217,6 +217,8 @@ class MapConfig:
     # Mosaics up to this size (decoded RGBA, MB) are read into memory at open; larger ones are read in cached
     # 256 px blocks (not in the paper).
     in_memory_max_mb: float = field(default=1024.0, metadata=_rng(0.0))
+    # A matcher call running longer (wall s) is cancelled, counted, and its worker replaced.
+    matcher_timeout_s: float = field(default=10.0, metadata=_rng(0.0, open_lo=True))
 
 
 @dataclass(frozen=True)
@@ -297,6 +299,8 @@ class LinkConfig:
     timesync_hz: float = field(default=1.0, metadata=_rng(0.0, 10.0))  # TIMESYNC requests; 0 disables
     # Autopilot time stepping back by more than this is a reboot: the estimator is re-anchored.
     reboot_backstep_s: float = field(default=1.0, metadata=_rng(0.0, open_lo=True))
+    # Nothing from the autopilot for this long (companion clock, s) is a lost link: event + STATUSTEXT later.
+    timeout_s: float = field(default=3.0, metadata=_rng(0.0, open_lo=True))
     check_params: bool = True  # read GPS1_TYPE / GPS_TYPE at start-up and warn unless 14 (ArduPilot)
 
 

@@ -55,7 +55,10 @@ def test_every_frame_read_and_refusals_counted_by_reason(report: dict) -> None:
     assert rej["MAVLINK:truncated"] >= mut["truncate"] + mut["split"]
     assert report["rejected_by_reason"]["foreign_source"] >= mut["foreign_source"]
     assert rej["ATTITUDE:nonfinite"] > 0 and rej["HIGHRES_IMU:nonfinite"] > 0
-    assert report["rejected_by_reason"]["no_time"] > 0 and report["reboots"] > 0
+    assert report["rejected_by_reason"]["no_time"] > 0
+    # single corrupt timestamps (time_jump mutations) are dropped unconfirmed instead of re-anchoring
+    jumps = sum(e["summary"]["dropped"].get("imu_time_jump_unconfirmed", 0) for e in report["episodes"])
+    assert jumps > 0 and report["reboots"] <= jumps // 2
 
 
 def test_stream_is_valid_mavlink() -> None:

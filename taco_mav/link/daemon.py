@@ -67,8 +67,8 @@ class DaemonOptions:
     estimator: Estimator = Estimator.PAPER
     matcher_latency_s: float = 0.0
     frame_max_gap_s: float = 0.15
-    link_timeout_s: float = 3.0
-    matcher_timeout_s: float = 10.0
+    link_timeout_s: float | None = None  # None: the profile's link.timeout_s
+    matcher_timeout_s: float | None = None  # None: the profile's map.matcher_timeout_s
     signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
 
 
@@ -101,6 +101,10 @@ class Daemon:
             raise ConfigError(f"output.messages: {bad or '[]'} not in {', '.join(OUTPUTS)}")
         if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
             raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
+        options = dataclasses.replace(
+            options, link_timeout_s=profile.link.timeout_s if options.link_timeout_s is None else options.link_timeout_s,
+            matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
+                               else options.matcher_timeout_s))
         self.profile, self.opt = profile, options
         self.clock, self.wall_clock = clock, wall_clock
         self.params = localiser_params(profile)
@@ -117,6 +121,7 @@ class Daemon:
         self.attitude: AttitudeReading | None = None
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.last_imu: ImuReading | None = None
+        self._held_jump: ImuReading | None = None  # first sample after a time jump, awaiting confirmation
         self._last_imu_clock = -math.inf
         self._generation = 0  # Localiser generation: +1 at each (re-)anchoring; older fixes are dropped
         self._last_status: dict[str, float] = {}
@@ -300,11 +305,25 @@ class Daemon:
         if r is None:
             return
         last = self.last_imu
-        if last is not None and r.t < last.t - self.profile.link.reboot_backstep_s:
-            self._reboot(last.t, r.t)
-        elif last is not None and r.t - last.t > self.profile.imu.max_dt_s and self.loc is not None:
-            self._imu_gap(last.t, r.t)
-        elif last is not None and r.t <= last.t:
+        back = last is not None and r.t < last.t - self.profile.link.reboot_backstep_s
+        gap = last is not None and r.t - last.t > self.profile.imu.max_dt_s and self.loc is not None
+        if back or gap:
+            # A time jump is believed only when the next sample continues the new timeline: one corrupt
+            # timestamp must not re-anchor the estimator (it is dropped and counted instead).
+            held, self._held_jump = self._held_jump, r
+            if held is None or not 0.0 < r.t - held.t <= self.profile.imu.max_dt_s:
+                self.stats.dropped["imu_time_jump_unconfirmed"] += 1
+                return
+            self._held_jump = None
+            assert last is not None
+            if back:
+                self._reboot(last.t, held.t)
+            else:
+                self._imu_gap(last.t, held.t)
+        elif self._held_jump is not None:
+            self._held_jump = None
+            self.stats.dropped["imu_time_outlier"] += 1
+        if last is not None and not (back or gap) and r.t <= last.t:
             self.stats.dropped["imu_out_of_order"] += 1
             return
         self.clockmap.on_autopilot_time(r.t)
@@ -362,7 +381,7 @@ class Daemon:
         text = f"autopilot reboot? time {t_last:.1f}s -> {t_new:.1f}s: re-anchored"
         log.warning("%s", text)
         self.events.write("reboot", t_last=t_last, t_new=t_new)
-        self._status(SEV_WARNING, text, key=None)
+        self._status(SEV_WARNING, text, key="reboot")
         self.clockmap.reset()
         self.fixes.clear_truth()
         if self.loc is not None and self.attitude is not None:
