@@ -13,7 +13,7 @@ from taco_mav.bench.classical import confidence_figures, confidence_samples, tex
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import GroundFrame
-from taco_mav.cvgl.classical import PSR_LOGISTIC_SCALE, ClassicalMatcher, psr_weight
+from taco_mav.cvgl.classical import PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, ClassicalMatcher, psr_weight
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
@@ -96,13 +96,13 @@ def test_empty_crop_list_gives_empty_answer(world) -> None:
 
 
 def test_psr_weight_is_a_logistic_around_the_profile_midpoint() -> None:
-    mid = ClassicalMatcherConfig().psr_at_half_weight
-    assert psr_weight(mid, mid) == pytest.approx(0.5)
-    assert psr_weight(mid + PSR_LOGISTIC_SCALE, mid) == pytest.approx(1.0 / (1.0 + math.exp(-1.0)))
-    ws = [psr_weight(p, mid) for p in np.linspace(0.0, 30.0, 61)]
+    mid = PSR_AT_HALF_WEIGHT
+    assert psr_weight(mid) == pytest.approx(0.5)
+    assert psr_weight(mid + PSR_LOGISTIC_SCALE) == pytest.approx(1.0 / (1.0 + math.exp(-1.0)))
+    ws = [psr_weight(p) for p in np.linspace(0.0, 30.0, 61)]
     assert all(b >= a for a, b in zip(ws, ws[1:]))  # monotone
     assert 0.0 < ws[0] < 1e-3 and ws[-1] == pytest.approx(1.0)
-    assert psr_weight(-1e9, mid) > 0.0  # w stays in (0, 1], no overflow
+    assert psr_weight(-1e9) > 0.0  # w stays in (0, 1], no overflow
 
 
 def test_chance_peaks_get_low_weight_and_correct_matches_high() -> None:
@@ -117,5 +117,4 @@ def test_chance_peaks_get_low_weight_and_correct_matches_high() -> None:
     assert figures["classical_w_auc"] > 0.95
     assert figures["classical_w_median_chance"] == pytest.approx(np.median(samples["w"][samples["chance"]]))
     # PSR and w agree: w is the logistic of the recorded PSR
-    mid = ClassicalMatcherConfig().psr_at_half_weight
-    np.testing.assert_allclose(samples["w"], [psr_weight(p, mid) for p in samples["psr"]])
+    np.testing.assert_allclose(samples["w"], [psr_weight(p) for p in samples["psr"]])

@@ -25,7 +25,7 @@ from taco_mav.config import CameraConfig, Fg2Config, Profile  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
 from taco_mav.cvgl.fg2 import Fg2Matcher, load_model  # noqa: E402
 from taco_mav.cvgl.fg2_published import PublishedFg2  # noqa: E402
-from taco_mav.cvgl.fg2_shim import DINOV2_FILE, fg2_import_scope, read_settings  # noqa: E402
+from taco_mav.cvgl.fg2_shim import DINOV2_FILE, _load_cvm, fg2_import_scope, read_settings  # noqa: E402
 from taco_mav.cvgl.registry import make_matcher  # noqa: E402
 from taco_mav.errors import MatcherError  # noqa: E402
 
@@ -207,3 +207,20 @@ def test_each_missing_piece_is_named(checkout: Path, tmp_path: Path) -> None:
     module.unlink()
     with pytest.raises(MatcherError, match=r"not an FG2 checkout \(models/model_kitti.py not found\)"):
         load_model(cfg)
+
+
+def test_grid_queries_of_a_cuda_built_model_are_copied_by_hand(checkout: Path) -> None:
+    """Built on CUDA, FG2's CVM holds grd_grid_queries as a plain tensor (not in its state_dict); a checkpoint
+    that has them must still set them."""
+    state = make_checkpoint(checkout, checkout.parent / "model.pt")
+    settings = read_settings(checkout / "config.ini")
+    with fg2_import_scope(checkout, torch.device("cpu")):
+        cvm = importlib.import_module("models.model_kitti").CVM(
+            "cpu", settings.grd_bev_res, settings.grd_height_res, settings.sat_bev_res, settings.grid_size_h,
+            settings.grid_size_v)
+    plain = cvm._parameters.pop("grd_grid_queries").detach().clone()
+    cvm.grd_grid_queries = plain  # what .to("cuda") leaves behind
+    assert "grd_grid_queries" not in cvm.state_dict()
+    _load_cvm(cvm, dict(state), checkout.parent / "model.pt")
+    assert torch.equal(cvm.grd_grid_queries, state["grd_grid_queries"])
+    assert torch.equal(cvm.dustbin_score.detach(), state["dustbin_score"])

@@ -43,17 +43,23 @@ __all__ = ["ClassicalMatcher", "psr_weight"]
 
 _EPS = 1e-6
 
-# PSR -> w logistic scale (PSR units); the midpoint is the profile's classical.psr_at_half_weight. Measured on the
-# synthetic world (`taco_mav.bench.classical.confidence_samples`, seeds 1-4: 1600 crops offset 0-30 m from the
-# truth and 400 crops of a different place; correct = fix error < 3 m): P(correct) is 0.00 below PSR 6, 0.10 at
-# 6-7, 0.59 at 7-8, 0.98 at 8-9 and 1.00 above 10; the maximum-likelihood logistic has midpoint 7.4 and scale
-# 0.40 (PSR AUC 0.9995). The scale is widened to 0.5 as a margin for real imagery.
+# PSR -> w logistic: midpoint (w = 0.5) and scale, PSR units. Measured with single crops offset 0-30 m from the
+# truth plus crops of a different place >= 150 m away (correct = fix error < 3 m), default matcher settings:
+# - taco_mav.datasets.synthetic world (build_world seed 3, 1 km; poses along its drive; 220 offset + 80 chance
+#   crops): P(correct) 0.07 at PSR 4-5, 0.28 at 5.5-6, 0.40 at 6-6.5, 0.85-1.00 from 6.5 on; chance peaks median
+#   4.9, max 8.0; correct median 8.8; maximum-likelihood logistic midpoint 6.1, scale 0.52 (PSR AUC 0.976);
+# - the bench's textured mosaic (`taco_mav.bench.classical.confidence_samples`, seeds 1-4, 1600 + 400 crops):
+#   P(correct) 0.10 at 6-7, 0.59 at 7-8, 0.98 at 8-9; chance median 4.5; midpoint 7.4, scale 0.40 (AUC 0.9995).
+# 6.5 / 0.5 sits between the two fits (mean log-loss 0.19 and 0.037 against the best 0.18 and 0.021).
+# Not read from the profile: classical.psr_at_half_weight (default 8.0) belonged to the old mapping.
+PSR_AT_HALF_WEIGHT = 6.5
 PSR_LOGISTIC_SCALE = 0.5
 
 
-def psr_weight(psr: float, psr_at_half_weight: float, scale: float = PSR_LOGISTIC_SCALE) -> float:
+def psr_weight(psr: float, psr_at_half_weight: float = PSR_AT_HALF_WEIGHT,
+               scale: float = PSR_LOGISTIC_SCALE) -> float:
     """Match weight in [_EPS, 1] from a peak-to-sidelobe ratio: 1 / (1 + exp(-(psr - psr_at_half_weight) / scale)),
-    monotone in the probability that the match is correct (see PSR_LOGISTIC_SCALE)."""
+    monotone in the probability that the match is correct (calibration: PSR_AT_HALF_WEIGHT)."""
     z = (psr - psr_at_half_weight) / scale
     w = 1.0 / (1.0 + math.exp(-z)) if z > -700.0 else 0.0
     return float(min(max(w, _EPS), 1.0))
@@ -280,6 +286,6 @@ class ClassicalMatcher:
         side = score[finite]
         psr = float((peak - side.mean()) / (side.std() + _EPS)) if side.size > 10 else 0.0
         psr = max(psr, 0.0)
-        w = psr_weight(psr, self.cfg.psr_at_half_weight)
+        w = psr_weight(psr)
         ca, sa = math.cos(angle), math.sin(angle)
         return MatchResult(R=np.array([[ca, -sa], [sa, ca]]), t=t, w=w), psr

@@ -13,9 +13,10 @@ The model is any object with this interface (torch tensors, on the model's devic
   crop centre (S - 1) / 2; mass (B,) the Procrustes correspondence mass in [0, 1].
 
 `load_model(cfg)` builds it through `cfg.entry` ("module:function", called as fn(checkout, checkpoint, device))
-with the user's FG2 checkout on sys.path while the entry is imported and called (removed afterwards). `taco_mav.cvgl.fg2_tiny` is a small model with the same interface
-that the tests save and load through the same path. torch is imported lazily: without it, the package works and
-only this matcher raises MatcherError.
+with the user's FG2 checkout on sys.path while the entry is imported and called (removed afterwards); the
+default entry, `taco_mav.cvgl.fg2_shim`, wraps the published FG2 model. `taco_mav.cvgl.fg2_tiny` is a small
+model with the same interface that the tests save and load through the same path. torch is imported lazily:
+without it, the package works and only this matcher raises MatcherError.
 """
 
 from __future__ import annotations

@@ -25,10 +25,12 @@ class CVM(nn.Module):
                  embed_dim=1024, desc_dim=128):
         super().__init__()
         self.device, self.temperature, self.embed_dim = device, temperature, embed_dim
-        self.rows, self.cols, self.sat_bev_res, self.grid_size_h = grd_bev_res // 2 + 1, grd_bev_res, sat_bev_res, grid_size_h
+        self.rows, self.cols = grd_bev_res // 2 + 1, grd_bev_res
+        self.sat_bev_res, self.grid_size_h = sat_bev_res, grid_size_h
         self.dustbin_score = nn.Parameter(torch.tensor(1.0))
         # as FG2: .to(device) unregisters the parameter when device is CUDA
-        self.grd_grid_queries = nn.Parameter(data=torch.rand(self.rows, self.cols, embed_dim), requires_grad=True).to(device)
+        queries = torch.rand(self.rows, self.cols, embed_dim)
+        self.grd_grid_queries = nn.Parameter(data=queries, requires_grad=True).to(device)
         self.grd_projector = nn.Conv2d(embed_dim, desc_dim, 1)
         self.sat_projector = nn.Conv2d(embed_dim, desc_dim, 1)
         x = np.linspace(-grid_size_h / 2, 0, self.rows)
