@@ -232,7 +232,10 @@ class ClassicalMatcherConfig:
     rotation_range_rad: float = field(default=math.radians(10.0), metadata=_rng(0.0, math.pi))
     # Rotation grid step; the best grid angle is refined at +-step/2, +-step/4 and by a parabola.
     rotation_step_rad: float = field(default=math.radians(4.0), metadata=_rng(0.0, math.pi, open_lo=True))
-    psr_at_half_weight: float = field(default=8.0, metadata=_rng(0.0, open_lo=True))
+    # w = 1 / (1 + exp(-(PSR - psr_at_half_weight) / psr_logistic_scale)), calibrated on the synthetic world and
+    # the bench mosaic (taco_mav/cvgl/classical.py has the measurements).
+    psr_at_half_weight: float = field(default=6.5, metadata=_rng(0.0, open_lo=True))
+    psr_logistic_scale: float = field(default=0.5, metadata=_rng(0.0, open_lo=True))
     # Vehicle positions searched: within this many metres of the crop centre along each crop axis.
     search_radius_m: float = field(default=30.0, metadata=_rng(1.0))
     # Shifts where the template overlaps the valid crop by less than this share of its mask are not scored.

@@ -5,6 +5,7 @@ loopback UDP."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from pathlib import Path
@@ -112,3 +113,35 @@ def test_daemon_keeps_its_rate_and_stops_with_a_hung_matcher(tmp_path: Path) -> 
     gaps = np.diff(times)
     assert len(times) >= 28 and gaps.mean() < 0.215 and gaps.max() < 0.3  # 5 Hz kept throughout
     assert "matcher_timeout" in (tmp_path / "events.jsonl").read_text()
+
+
+class WeakMatcher:
+    """Always answers, never confidently (w = 0.05): a matcher looking at the wrong place."""
+
+    name = "weak"
+
+    def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
+        return [MatchResult(np.eye(2), np.array([3.0, -2.0]), 0.05) for _ in crops]
+
+
+def test_taco_plus_lock_loss_is_logged_and_announced(tmp_path: Path) -> None:
+    """taco+ in the daemon: weak answers only -> lock declared lost, written to the event log as a "lock" event,
+    sent to the autopilot as a STATUSTEXT, and the grid search starts (queries with more than five crops)."""
+    port = free_udp_port()
+    profile = small_camera_profile(estimator="taco+", plus={"trigger_sigma_m": 0.3, "lost_after_s": 2.0})
+    daemon = Daemon(profile, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", log_dir=tmp_path), matcher=WeakMatcher())
+    daemon.start()
+    time.sleep(0.2)
+    ap = MiniAutopilot(port)
+    ap.start()
+    time.sleep(8.0)
+    daemon.stop()
+    daemon.join(5.0)
+    ap.stop()
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    locks = [e for e in events if e.get("event") == "lock"]
+    assert locks and locks[0]["kind"] == "lock_lost"
+    texts = [r.msg.text for r in ap.of_type("STATUSTEXT")]
+    assert any("lock lost" in t for t in texts), texts
+    crops = [len(e["crop_centres"]) for e in events if e.get("event") == "fix" and "crop_centres" in e]
+    assert max(crops) > 5 and daemon.summary()["fixes"].get("weak", 0) >= 4

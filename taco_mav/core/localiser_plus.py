@@ -234,3 +234,7 @@ class PlusLocaliser(Localiser):
     def lock_events(self) -> list[tuple[float, str, str]]:
         """(t, kind, detail) of lock_lost / relocalised / relock_failed / recovered."""
         return list(self.lock.events)
+
+    def take_lock_events(self) -> list[tuple[float, str, str]]:
+        """The lock events not yet taken (the daemon logs each once)."""
+        return self.lock.take_unreported()

@@ -40,11 +40,18 @@ class LockMonitor:
     losses: int = 0
     recoveries: int = 0
     events: list[tuple[float, str, str]] = field(default_factory=list)
+    unreported: list[tuple[float, str, str]] = field(default_factory=list)
 
     def _event(self, t: float, kind: str, detail: str) -> None:
-        self.events.append((t, kind, detail))
-        if len(self.events) > 1000:  # bounded for the daemon; counts are kept separately
-            del self.events[:500]
+        for store in (self.events, self.unreported):
+            store.append((t, kind, detail))
+            if len(store) > 1000:  # bounded for the daemon; counts are kept separately
+                del store[:500]
+
+    def take_unreported(self) -> list[tuple[float, str, str]]:
+        """The events since the last call (for a live log), oldest first."""
+        out, self.unreported = self.unreported, []
+        return out
 
     def on_failure(self, t: float, reason: str) -> bool:
         """A trigger produced no accepted fix. Returns True when this declares lock lost."""

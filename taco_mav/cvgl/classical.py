@@ -51,7 +51,7 @@ _EPS = 1e-6
 # - the bench's textured mosaic (`taco_mav.bench.classical.confidence_samples`, seeds 1-4, 1600 + 400 crops):
 #   P(correct) 0.10 at 6-7, 0.59 at 7-8, 0.98 at 8-9; chance median 4.5; midpoint 7.4, scale 0.40 (AUC 0.9995).
 # 6.5 / 0.5 sits between the two fits (mean log-loss 0.19 and 0.037 against the best 0.18 and 0.021).
-# Not read from the profile: classical.psr_at_half_weight (default 8.0) belonged to the old mapping.
+# The profile's classical.psr_at_half_weight / psr_logistic_scale default to these values.
 PSR_AT_HALF_WEIGHT = 6.5
 PSR_LOGISTIC_SCALE = 0.5
 
@@ -286,6 +286,6 @@ class ClassicalMatcher:
         side = score[finite]
         psr = float((peak - side.mean()) / (side.std() + _EPS)) if side.size > 10 else 0.0
         psr = max(psr, 0.0)
-        w = psr_weight(psr)
+        w = psr_weight(psr, self.cfg.psr_at_half_weight, self.cfg.psr_logistic_scale)
         ca, sa = math.cos(angle), math.sin(angle)
         return MatchResult(R=np.array([[ca, -sa], [sa, ca]]), t=t, w=w), psr

@@ -64,7 +64,7 @@ class DaemonOptions:
     map_path: Path | None = None
     log_dir: Path | None = None
     origin: tuple[float, float, float] | None = None
-    estimator: Estimator = Estimator.PAPER
+    estimator: Estimator | None = None  # None: the profile's
     matcher_latency_s: float = 0.0
     frame_max_gap_s: float = 0.15
     link_timeout_s: float | None = None  # None: the profile's link.timeout_s
@@ -94,7 +94,7 @@ class Daemon:
 
     def __init__(self, profile: Profile, options: DaemonOptions, clock: Callable[[], float] = time.monotonic,
                  wall_clock: Callable[[], float] = time.time, matcher: Matcher | None = None) -> None:
-        if options.estimator is not profile.estimator:
+        if options.estimator is not None and options.estimator is not profile.estimator:
             profile = dataclasses.replace(profile, estimator=options.estimator)
         bad = [m for m in profile.output.messages if m not in OUTPUTS]
         if bad or not profile.output.messages:

@@ -35,6 +35,7 @@ from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, WorldSource, 
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
+from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
 from taco_mav.link import encoders
@@ -257,6 +258,11 @@ class FixPipeline:
         if loc is None:
             return
         assert self.events is not None
+        if isinstance(loc, PlusLocaliser):
+            for t, kind, detail in loc.take_lock_events():
+                self.events.write("lock", t=t, kind=kind, detail=detail)
+                self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed") else SEV_INFO,
+                            f"{kind.replace('_', ' ')} {detail}".strip(), None)
         while True:
             try:
                 res = self._results.get_nowait()
