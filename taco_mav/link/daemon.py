@@ -37,6 +37,7 @@ from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuR
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
 from taco_mav.link.health import Health, LinkWatch, stall_sigma
+from taco_mav.link.imu_timeline import ImuTimeline, Verdict
 from taco_mav.link.reconnect import pace_tcp_reconnect
 from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
@@ -121,7 +122,7 @@ class Daemon:
         self.attitude: AttitudeReading | None = None
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.last_imu: ImuReading | None = None
-        self._held_jump: ImuReading | None = None  # first sample after a time jump, awaiting confirmation
+        self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self._last_imu_clock = -math.inf
         self._generation = 0  # Localiser generation: +1 at each (re-)anchoring; older fixes are dropped
         self._last_status: dict[str, float] = {}
@@ -304,28 +305,16 @@ class Daemon:
         r = self.decoders.imu(msg)
         if r is None:
             return
-        last = self.last_imu
-        back = last is not None and r.t < last.t - self.profile.link.reboot_backstep_s
-        gap = last is not None and r.t - last.t > self.profile.imu.max_dt_s and self.loc is not None
-        if back or gap:
-            # A time jump is believed only when the next sample continues the new timeline: one corrupt
-            # timestamp must not re-anchor the estimator (it is dropped and counted instead).
-            held, self._held_jump = self._held_jump, r
-            if held is None or not 0.0 < r.t - held.t <= self.profile.imu.max_dt_s:
-                self.stats.dropped["imu_time_jump_unconfirmed"] += 1
-                return
-            self._held_jump = None
-            assert last is not None
-            if back:
-                self._reboot(last.t, held.t)
-            else:
-                self._imu_gap(last.t, held.t)
-        elif self._held_jump is not None:
-            self._held_jump = None
+        check = self.timeline.check(r.t, self.loc is not None)
+        if check.outlier:
             self.stats.dropped["imu_time_outlier"] += 1
-        if last is not None and not (back or gap) and r.t <= last.t:
-            self.stats.dropped["imu_out_of_order"] += 1
+        if check.verdict in (Verdict.UNCONFIRMED, Verdict.OUT_OF_ORDER):
+            self.stats.dropped[check.verdict.value] += 1
             return
+        if check.verdict is Verdict.REBOOT:
+            self._reboot(check.t_from, check.t_to)
+        elif check.verdict is Verdict.GAP:
+            self._imu_gap(check.t_from, check.t_to)
         self.clockmap.on_autopilot_time(r.t)
         self.last_imu = r
         self._last_imu_clock = self.clock()
