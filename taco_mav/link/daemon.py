@@ -18,14 +18,12 @@ import math
 import signal
 import threading
 import time
-from collections import Counter, deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
+from taco_mav.config import Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.types import ImuSample
@@ -38,6 +36,7 @@ from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
 from taco_mav.link.health import Health, LinkWatch, stall_sigma
 from taco_mav.link.imu_timeline import ImuTimeline, Verdict
+from taco_mav.link.options import DaemonOptions, DaemonStats
 from taco_mav.link.reconnect import pace_tcp_reconnect
 from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
@@ -51,41 +50,7 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER = 6, 18
 
 
-@dataclass(frozen=True)
-class DaemonOptions:
-    """connect: pymavlink connection string; camera: `--camera` spec; map_path: satellite GeoTIFF (default:
-    the world's mosaic for world: cameras); log_dir: tlog + JSONL events + resolved config; origin: (lat, lon,
-    alt) start fix instead of the first GPS_RAW_INT; matcher_latency_s: artificial matcher delay (tests);
-    frame_max_gap_s: largest |frame time - capture time| accepted; link_timeout_s: no message from the
-    autopilot for this long (companion clock) is a lost link; matcher_timeout_s: a matcher call running longer
-    (wall s) is cancelled and its worker replaced."""
-
-    connect: str
-    camera: str | None = None
-    map_path: Path | None = None
-    log_dir: Path | None = None
-    origin: tuple[float, float, float] | None = None
-    estimator: Estimator | None = None  # None: the profile's
-    matcher_latency_s: float = 0.0
-    frame_max_gap_s: float = 0.15
-    link_timeout_s: float | None = None  # None: the profile's link.timeout_s
-    matcher_timeout_s: float | None = None  # None: the profile's map.matcher_timeout_s
-    signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
-
-
-@dataclass
-class DaemonStats:
-    """Counters and timings. imu_to_estimate_s: per IMU sample, receive -> Localiser updated (perf_counter s);
-    output_times: monotonic send time of each position output (first configured message)."""
-
-    imu_samples: int = 0
-    imu_to_estimate_s: deque[float] = field(default_factory=lambda: deque(maxlen=50_000))
-    output_times: deque[float] = field(default_factory=lambda: deque(maxlen=50_000))
-    queries: int = 0
-    fixes: Counter[str] = field(default_factory=Counter)
-    dropped: Counter[str] = field(default_factory=Counter)
-    reboots: int = 0
-    imu_gaps: int = 0
+__all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
 
 
 class Daemon:

@@ -45,7 +45,7 @@ from taco_mav.link.timesync import ClockMap
 from taco_mav.link.worker import FetchFn, MatchWorker, WorkResult
 
 if TYPE_CHECKING:
-    from taco_mav.link.daemon import DaemonOptions
+    from taco_mav.link.options import DaemonOptions
 
 log = logging.getLogger(__name__)
 
