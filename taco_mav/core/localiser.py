@@ -248,18 +248,30 @@ class Localiser:
         self._last_fix_t = max(self._last_fix_t, now if naive else q.capture_t)
         if self.p.yaw_gate and not passes_yaw_gate(best.R, self.p.yaw_residual_max_rad):
             return self._log(FixOutcome(query_id, False, "yaw_gate", q.capture_t, now, k, xy, psi, weights=weights))
-        s_f, s_l = fix_sigmas(best.w, self.p.fix_fwd_num, self.p.fix_fwd_min_m, self.p.fix_fwd_max_m,
-                              self.p.fix_lat_num, self.p.fix_lat_min_m, self.p.fix_lat_max_m, self.p.anisotropic)
+        s_f, s_l = self._fix_sigmas(best.w)
         tick = self._capture_tick(q)
-        if naive:
+        if tick is None and not naive:
+            return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
+        nis = self._fuse(tick, xy, s_f, s_l)
+        return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+
+    def _fix_sigmas(self, w: float) -> tuple[float, float]:
+        """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F)."""
+        p = self.p
+        return fix_sigmas(w, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num, p.fix_lat_min_m,
+                          p.fix_lat_max_m, p.anisotropic)
+
+    def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float) -> float:
+        """Apply a fix (ENU m, body sigmas m) on arrival or at its capture frame `tick` (then required), record
+        it for the smoother; returns the NIS."""
+        if self.p.apply_on_arrival:
             nis = self._apply_now(xy, s_f, s_l, tick)
         else:
-            if tick is None:
-                return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
+            assert tick is not None
             nis = self._apply_at(tick, xy, s_f, s_l)
         if self.record and tick is not None:
             self._graph_fixes[tick.node] = FixNode(tick.node, xy.copy(), s_f, s_l)
-        return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+        return nis
 
     def _take_pending(self, query_id: int, results: Sequence[MatchResult | None]) -> FixQuery | FixOutcome:
         """The in-flight query these results answer, or the outcome when they answer none or hold nothing."""

@@ -21,10 +21,9 @@ from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus import consensus, cross_arm, grid_rings, hex_offsets, process_noise_plus
 from taco_mav.core.search import cross_offsets, fix_position
-from taco_mav.core.smoother import FixNode
 from taco_mav.core.stationary import StationaryDetector
-from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult
-from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas
+from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
+from taco_mav.core.ukf import PlanarUkf, fix_covariance
 
 
 def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
@@ -32,11 +31,6 @@ def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float 
     """The Localiser for the estimator mode in `params`: paper (params.plus is None) or taco+."""
     cls = Localiser if params.plus is None else PlusLocaliser
     return cls(params, t0, x, y, heading, speed, record=record, heading_offset=heading_offset)
-
-
-def _sigma_h(P: np.ndarray) -> float:
-    """1-sigma horizontal uncertainty, metres: sqrt of the largest eigenvalue of the position block."""
-    return float(math.sqrt(max(np.linalg.eigvalsh(P[:2, :2]).max(), 0.0)))
 
 
 class PlusLocaliser(Localiser):
@@ -102,10 +96,10 @@ class PlusLocaliser(Localiser):
     # ------------------------------------------------------------------ trigger and search
     def _plan_search(self) -> tuple[str, float, np.ndarray] | None:
         q = self.q
-        sig = _sigma_h(self.ukf.P)
+        sig = horizontal_sigma(self.ukf.P)
         if self.lock.on_uncertainty(self.t, sig):
             self._inflate(sig)
-            sig = _sigma_h(self.ukf.P)
+            sig = horizontal_sigma(self.ukf.P)
         if self.t - self._last_answer_t < q.recover_interval_s:
             return None
         state = self.lock.state
@@ -164,8 +158,7 @@ class PlusLocaliser(Localiser):
         tick = self._capture_tick(q)
         if tick is None:
             return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
-        s_f, s_l = fix_sigmas(c.weight, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num,
-                              p.fix_lat_min_m, p.fix_lat_max_m, p.anisotropic)
+        s_f, s_l = self._fix_sigmas(c.weight)
         innov = z - tick.x[:2]
         jump = float(np.linalg.norm(innov))
         R = fix_covariance(float(tick.x[2]), s_f, s_l)
@@ -178,12 +171,7 @@ class PlusLocaliser(Localiser):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
-        if p.apply_on_arrival:
-            self._apply_now(z, s_f, s_l, tick)
-        else:
-            self._apply_at(tick, z, s_f, s_l)
-        if self.record:
-            self._graph_fixes[tick.node] = FixNode(tick.node, z.copy(), s_f, s_l)
+        self._fuse(tick, z, s_f, s_l)
         self._settle_lock(state, jump, s_f, s_l)
         if self._history:
             self._feedback(self._history[-1])

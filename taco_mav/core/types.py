@@ -91,4 +91,10 @@ class Estimate:
     @property
     def sigma_h(self) -> float:
         """1-sigma horizontal accuracy, metres: sqrt of the largest eigenvalue of cov_xy."""
-        return float(np.sqrt(max(np.linalg.eigvalsh(self.cov_xy).max(), 0.0)))
+        return horizontal_sigma(self.cov_xy)
+
+
+def horizontal_sigma(cov: np.ndarray) -> float:
+    """1-sigma horizontal accuracy, metres: sqrt of the largest eigenvalue of the 2x2 position block of cov
+    (m^2)."""
+    return float(np.sqrt(max(np.linalg.eigvalsh(np.asarray(cov)[:2, :2]).max(), 0.0)))
