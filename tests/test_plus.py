@@ -1,5 +1,5 @@
 """taco+ building blocks: process noise, search patterns, consensus, the lock state machine, stationary
-detection, the 5-state filter."""
+detection, the 5- and 6-state filter, the adaptive fix-noise scale."""
 
 import math
 
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from taco_mav.core.lock import LockMonitor, LockState
-from taco_mav.core.plus import PlusParams, consensus, cross_arm, grid_rings, hex_offsets, process_noise_plus
+from taco_mav.core.plus import (FixNoiseScale, PlusParams, bias_decay, consensus, cross_arm, grid_rings, hex_offsets,
+                                process_noise_plus)
 from taco_mav.core.stationary import StationaryDetector
 from taco_mav.core.ukf import PlanarUkf
 
@@ -15,11 +16,36 @@ from taco_mav.core.ukf import PlanarUkf
 def test_process_noise_grows_with_time_and_distance_in_the_body_frame():
     p = PlusParams(q_pos_mps=0.0, q_fwd_per_m=0.01, q_lat_per_m=0.02)
     Q = process_noise_plus(math.pi / 2, 0.1, 10.0, p)  # heading north: forward = +y
-    assert Q.shape == (5, 5)
+    assert Q.shape == (6, 6)
     assert Q[1, 1] == pytest.approx(0.01)  # (0.01 * 10)^2 along track
     assert Q[0, 0] == pytest.approx(0.04)  # (0.02 * 10)^2 cross track
     assert Q[3, 3] == pytest.approx(p.q_speed_mps**2 * 0.1)
+    # compass bias: Gauss-Markov driving noise keeps its stationary variance sigma^2
+    d = bias_decay(0.1, p)
+    assert d == pytest.approx(math.exp(-0.1 / p.compass_bias_tau_s))
+    assert d * d * p.compass_bias_sigma_rad**2 + Q[5, 5] == pytest.approx(p.compass_bias_sigma_rad**2)
     assert np.all(np.linalg.eigvalsh(Q) >= -1e-15)
+    assert process_noise_plus(0.0, 0.1, 1.0, PlusParams(compass_bias_sigma_rad=0.0)).shape == (5, 5)
+
+
+def test_fix_noise_scale_learns_the_matchers_real_sigma():
+    rng = np.random.default_rng(4)
+    R0 = np.diag([1.5**2, 3.0**2])  # the paper's mapping at w = 1
+    P = np.diag([0.2**2, 0.3**2])  # prior position covariance at each fix
+    est = FixNoiseScale(lo=0.05, hi=2.0, window=10)
+    scales = []
+    for _ in range(400):  # true fix noise = 0.4 x R0's sigmas, true prior error ~ N(0, P)
+        innov = rng.multivariate_normal(np.zeros(2), P + 0.16 * R0)
+        scales.append(est.update(innov, P, R0))
+    assert np.median(scales[100:]) == pytest.approx(0.4, abs=0.06)
+    # clipped to [lo, hi]: a perfect matcher stops at lo, a matcher much worse than R0 at hi
+    lo = FixNoiseScale(lo=0.3, hi=2.0, window=10)
+    hi = FixNoiseScale(lo=0.3, hi=2.0, window=10)
+    for _ in range(50):
+        lo.update(np.zeros(2), P, R0)
+        hi.update(np.array([40.0, 40.0]), P, R0)
+    assert lo.scale == pytest.approx(0.3, abs=0.01)
+    assert hi.scale == pytest.approx(2.0)
 
 
 @pytest.mark.parametrize("rings", [1, 2, 3, 4])
@@ -59,19 +85,24 @@ def test_consensus_prefers_the_agreeing_cluster_over_the_single_heaviest():
 
 def test_lock_monitor_needs_misses_and_time_then_confirmations():
     m = LockMonitor(lost_after=3, lost_after_s=5.0, capture_radius_m=20.0, confirm_fixes=2)
-    for t in (1.0, 2.0, 3.0):
-        assert not m.on_failure(t, "weak")  # three misses, but only 3 s since the last fix
-    assert m.on_failure(5.5, "weak") and m.state is LockState.LOST and m.losses == 1
-    m.on_failure(6.0, "weak")
+    for t in (1.0, 2.0, 3.0, 5.5):
+        assert not m.on_failure(t, "weak")  # enough misses, but the run has lasted only 4.5 s
+    assert m.on_failure(6.5, "weak") and m.state is LockState.LOST and m.losses == 1
+    m.on_failure(7.0, "weak")
     assert m.attempts == 1
-    m.on_relocalised(7.0, 35.0)
-    assert m.state is LockState.CONFIRMING
-    m.on_accepted(7.5)
+    m.on_relocalised(7.5, 35.0)
     assert m.state is LockState.CONFIRMING
     m.on_accepted(8.0)
+    assert m.state is LockState.CONFIRMING
+    m.on_accepted(8.5)
     assert m.state is LockState.LOCKED and m.recoveries == 1
     assert [k for _, k, _ in m.events] == ["lock_lost", "relocalised", "recovered"]
-    assert m.on_uncertainty(9.0, 7.0) and m.state is LockState.LOST  # 3 sigma = 21 m > capture radius
+    # a burst of failures long after the last accepted fix is still only a burst
+    for t in (100.0, 100.5, 101.0, 101.5, 102.0):
+        assert not m.on_failure(t, "innovation_gate")
+    m.on_accepted(103.0)
+    assert m.misses == 0 and m.state is LockState.LOCKED
+    assert m.on_uncertainty(109.0, 7.0) and m.state is LockState.LOST  # 3 sigma = 21 m > capture radius
 
 
 def test_stationary_detector():
@@ -103,3 +134,23 @@ def test_five_state_motion_uses_speed_error_and_bias():
         PlanarUkf(np.zeros(4), np.eye(4))
     with pytest.raises(ValueError):
         PlanarUkf(np.zeros(3), np.eye(3)).update_speed_error(0.0, 0.1)
+
+
+def test_six_state_filter_separates_a_compass_bias_from_the_heading():
+    """Drive straight east for 60 s with a compass that reads 0.02 rad too high; position fixes every 5 s make
+    the bias observable, so theta converges to the truth and beta to the bias (the compass alone cannot)."""
+    bias, sigma_b = 0.02, 0.03
+    P0 = np.diag([0.01, 0.01, 0.05**2, 1e-4, 1e-6, sigma_b**2])
+    f = PlanarUkf(np.array([0.0, 0.0, bias, 0.0, 0.0, 0.0]), P0)
+    Q = np.diag([1e-6, 1e-6, 1e-8, 1e-8, 1e-10, 1e-10])
+    x = 0.0
+    for k in range(1, 601):
+        # the preintegrator rotated by the biased compass: a 1 m step "east" at heading `bias`
+        f.predict(1.0, 0.0, 0.0, Q, dt=0.1, bias_decay=1.0)
+        f.update_heading(bias, 0.01)
+        x += 1.0
+        if k % 50 == 0:
+            f.update_position(np.array([x, 0.0]), np.diag([0.2**2, 0.2**2]))
+    assert f.x[2] == pytest.approx(0.0, abs=0.003)  # heading: the truth, not the compass
+    assert f.x[5] == pytest.approx(bias, abs=0.003)
+    assert abs(f.x[1]) < 0.3  # the track is no longer bent by the bias (60 m x 0.02 rad = 1.2 m without)

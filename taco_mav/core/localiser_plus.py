@@ -19,7 +19,8 @@ from taco_mav.core.gate import yaw_residual
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import consensus, cross_arm, grid_rings, hex_offsets, process_noise_plus
+from taco_mav.core.plus import (FixNoiseScale, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
+                                process_noise_plus)
 from taco_mav.core.search import cross_offsets, fix_position
 from taco_mav.core.stationary import StationaryDetector
 from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
@@ -43,14 +44,16 @@ class PlusLocaliser(Localiser):
         self.q = params.plus
         super().__init__(params, t0, x, y, heading, speed, record, heading_offset)
         q, s_xy, s_th = self.q, params.initial_sigma_xy_m, params.initial_sigma_theta_rad
-        P0 = np.diag([s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2])
-        self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0]), P0, params.ukf_alpha, params.ukf_beta,
-                             params.ukf_kappa)
+        var = [s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2,
+               q.compass_bias_sigma_rad**2][:n_states(q)]
+        self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0, 0.0][:len(var)]), np.diag(var), params.ukf_alpha,
+                             params.ukf_beta, params.ukf_kappa)
         self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2)
         self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
         self._last_answer_t = -math.inf
         self._zupt = False  # the last frame had a zero-velocity update
         self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
+        self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window)
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -68,8 +71,9 @@ class PlusLocaliser(Localiser):
 
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         inc = tick.inc
-        Q = process_noise_plus(float(self.ukf.x[2]), max(inc.dt, 1e-6), inc.distance, self.q)
-        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt)
+        dt = max(inc.dt, 1e-6)
+        Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q)
+        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
 
     def _after_heading(self, tick: _Tick) -> None:
         if tick.stationary:  # true speed 0: dv = -(preintegrated speed at the frame end)
@@ -158,11 +162,12 @@ class PlusLocaliser(Localiser):
         tick = self._capture_tick(q)
         if tick is None:
             return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
-        s_f, s_l = self._fix_sigmas(c.weight)
+        s_f0, s_l0 = self._fix_sigmas(c.weight)  # the matcher's w mapped as in the paper
+        sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
+        s_f, s_l = sc * s_f0, sc * s_l0
         innov = z - tick.x[:2]
         jump = float(np.linalg.norm(innov))
-        R = fix_covariance(float(tick.x[2]), s_f, s_l)
-        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + R, innov))
+        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
         state = self.lock.state
         if state is LockState.LOST:  # relocalise: the candidate replaces the position (the jump enters P)
             tick.P = tick.P.copy()
@@ -171,6 +176,8 @@ class PlusLocaliser(Localiser):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
+        if qp.adaptive_fix_noise and state is LockState.LOCKED:  # learn from this fix for the next ones
+            self.fix_scale.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f0, s_l0))
         self._fuse(tick, z, s_f, s_l)
         self._settle_lock(state, jump, s_f, s_l)
         if self._history:

@@ -5,9 +5,10 @@ hexagonal grid sized by the inflated uncertainty), CONFIRMING (a relocalisation 
 in the reported uncertainty until `confirm_fixes` further fixes agree).
 
 Lock is declared lost after `lost_after` consecutive answered triggers without an accepted fix (misses, gate
-rejections, innovation rejections alike) spanning at least `lost_after_s` seconds since the last accepted fix
-(a short run of confident, mutually consistent outliers must not outvote a good IMU), or when the filter's 1-sigma exceeds a third of the capture radius
-(3 sigma no longer fits inside one crop's capture). Events are kept as (t, kind, detail) for logs and counts.
+rejections, innovation rejections alike) whose run spans at least `lost_after_s` seconds from its first failure
+(a short run of confident, mutually consistent outliers must not outvote a good IMU, however long ago the last
+fix was), or when the filter's 1-sigma exceeds a third of the capture radius (3 sigma no longer fits inside
+one crop's capture). Events are kept as (t, kind, detail) for logs and counts.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ class LockMonitor:
     last_accept_t: float = 0.0
     state: LockState = LockState.LOCKED
     misses: int = 0
+    first_miss_t: float = 0.0  # time of the first failure of the current run
     attempts: int = 0  # failed recovery attempts since lock was lost
     confirmations: int = 0
     jump_m: float = 0.0
@@ -55,6 +57,8 @@ class LockMonitor:
 
     def on_failure(self, t: float, reason: str) -> bool:
         """A trigger produced no accepted fix. Returns True when this declares lock lost."""
+        if self.misses == 0:
+            self.first_miss_t = t
         self.misses += 1
         if self.state is LockState.LOST:
             self.attempts += 1
@@ -64,7 +68,7 @@ class LockMonitor:
             self._event(t, "relock_failed", reason)
             return False
         if (self.state is LockState.LOCKED and self.misses >= self.lost_after
-                and t - self.last_accept_t >= self.lost_after_s):
+                and t - self.first_miss_t >= self.lost_after_s):
             return self.declare_lost(t, f"{self.misses} triggers without a fix (last: {reason})")
         return False
 

@@ -33,7 +33,9 @@ class PlusParams:
     q_lat_per_m: float = 0.01  # cross-track error per metre travelled
     q_theta_rad: float = 0.002  # heading random walk, rad/sqrt(s)
     q_speed_mps: float = 0.2  # speed-error random walk, (m/s)/sqrt(s)
-    q_bias_mps2: float = 1e-3  # accelerometer-bias random walk, (m/s^2)/sqrt(s)
+    q_bias_mps2: float = 0.005  # accelerometer-bias random walk, (m/s^2)/sqrt(s)
+    compass_bias_sigma_rad: float = 0.01  # Gauss-Markov std of the compass/AHRS heading bias (0: no state)
+    compass_bias_tau_s: float = 60.0
     initial_speed_sigma_mps: float = 0.3
     initial_bias_sigma_mps2: float = 0.05
     # zero-velocity update
@@ -53,6 +55,11 @@ class PlusParams:
     chi2_gate: float = 13.82  # 2-dof chi-square, 99.9 %
     w_min: float = 0.2  # weaker answers count as misses
     consensus_radius_m: float = 3.0
+    # adaptive fix noise
+    adaptive_fix_noise: bool = True
+    fix_scale_min: float = 0.3
+    fix_scale_max: float = 2.0
+    fix_scale_window: int = 10
     # loss of lock and recovery
     capture_radius_m: float = 20.0
     lost_after: int = 4  # consecutive triggers without an accepted fix
@@ -65,11 +72,24 @@ class PlusParams:
     confirm_fixes: int = 2
 
 
+def n_states(p: PlusParams) -> int:
+    """5 (x, y, theta, dv, b), or 6 with the compass bias beta."""
+    return 6 if p.compass_bias_sigma_rad > 0.0 else 5
+
+
+def bias_decay(dt: float, p: PlusParams) -> float:
+    """exp(-dt / tau) of the compass-bias Gauss-Markov process over dt seconds."""
+    return math.exp(-dt / p.compass_bias_tau_s)
+
+
 def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams) -> np.ndarray:
-    """Q (5x5) for one predict over `dt` seconds and `distance` metres at heading theta (ENU rad): position
-    random walk plus distance-proportional body-frame terms rotated into ENU, heading, speed-error and
-    bias random walks."""
-    Q = np.zeros((5, 5))
+    """Q (5x5, or 6x6 with the compass bias) for one predict over `dt` seconds and `distance` metres at
+    heading theta (ENU rad): position random walk plus distance-proportional body-frame terms rotated into
+    ENU, heading, speed-error and bias random walks, and the compass bias's Gauss-Markov driving noise."""
+    n = n_states(p)
+    Q = np.zeros((n, n))
+    if n == 6:
+        Q[5, 5] = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2)
     rw = p.q_pos_mps * p.q_pos_mps * dt
     s_f, s_l = p.q_fwd_per_m * distance, p.q_lat_per_m * distance
     Q[:2, :2] = fix_covariance(theta, s_f, s_l) + rw * np.eye(2)
@@ -130,3 +150,34 @@ def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float
     best = int(idx[m][np.argmax(ws[m])])
     mean = (ws[m, None] * pts[m]).sum(axis=0) / ws[m].sum()
     return Consensus(best, mean, int(m.sum()), float(w[best]))
+
+
+@dataclass
+class FixNoiseScale:
+    """Covariance matching for the fix noise: the matcher's nominal covariance R0 (from w) is scaled by s^2,
+    learnt from the innovations of accepted fixes. For an innovation nu (ENU m) with prior position covariance
+    P and nominal R0 (m^2), E[nu^T R0^-1 nu] = tr(P R0^-1) + 2 s^2, so each fix gives one sample of s^2; the
+    samples are averaged (a running mean over the first `window` fixes, the prior s^2 = 1 counting as one
+    sample, then exponentially over `window`) and s is clipped to [lo, hi]."""
+
+    lo: float
+    hi: float
+    window: int
+    s2: float = 1.0
+    n: int = 0  # samples so far
+
+    @property
+    def scale(self) -> float:
+        """The current sigma scale (dimensionless)."""
+        return math.sqrt(self.s2)
+
+    def update(self, innov: np.ndarray, P: np.ndarray, R0: np.ndarray) -> float:
+        """Add one accepted fix; returns the new scale. A sample is capped at 4 (hi^2) so one outlier that
+        slipped through the gates moves s^2 by at most that over `window`."""
+        Ri = np.linalg.inv(R0)
+        sample = 0.5 * (float(innov @ Ri @ innov) - float(np.trace(P @ Ri)))
+        sample = min(max(sample, self.lo * self.lo), 4.0 * self.hi * self.hi)
+        self.n += 1
+        a = 1.0 / min(self.n + 1, self.window)
+        self.s2 = min(max((1.0 - a) * self.s2 + a * sample, self.lo * self.lo), self.hi * self.hi)
+        return self.scale

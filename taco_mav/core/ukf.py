@@ -21,17 +21,21 @@ from taco_mav.core.preintegration import wrap_angle as _wrap
 _EIG_FLOOR = 1e-9
 
 
-def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d_theta: float = 0.0) -> np.ndarray:
+def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d_theta: float = 0.0,
+            bias_decay: float = 1.0) -> np.ndarray:
     """Body-frame rigid motion (Sec. III-F): rotate (forward, left) by theta, add dtheta (no wrap here).
     With the taco+ states (x[3] = speed error dv m/s, x[4] = accelerometer bias b m/s^2) the forward step
-    gains dv dt - b dt^2 / 2 and dv loses b dt."""
-    if len(x) == 5:
+    gains dv dt - b dt^2 / 2 and dv loses b dt; the optional x[5] (compass bias, rad, first-order
+    Gauss-Markov) decays by `bias_decay` = exp(-dt / tau)."""
+    if len(x) >= 5:
         dv, b = x[3], x[4]
         d_fwd = d_fwd + dv * dt - 0.5 * b * dt * dt
     c, s = math.cos(x[2]), math.sin(x[2])
     moved = [x[0] + c * d_fwd - s * d_left, x[1] + s * d_fwd + c * d_left, x[2] + d_theta]
-    if len(x) == 5:
+    if len(x) >= 5:
         moved += [x[3] - x[4] * dt, x[4]]
+    if len(x) == 6:
+        moved.append(x[5] * bias_decay)
     return np.array(moved)
 
 
@@ -86,19 +90,22 @@ def _rows(n: int, *cols: int) -> np.ndarray:
 
 class PlanarUkf:
     """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3). taco+ passes a (5,) x0 that adds the
-    forward speed error dv (m/s, true minus preintegrated) and the forward accelerometer bias b (m/s^2)."""
+    forward speed error dv (m/s, true minus preintegrated) and the forward accelerometer bias b (m/s^2), or a
+    (6,) x0 that also carries the compass bias beta (rad; the compass reads theta + beta)."""
 
     def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> None:
         n = len(x0)
-        if n not in (3, 5) or np.shape(P0) != (n, n):
-            raise ValueError(f"PlanarUkf: state must be 3 or 5 long with a matching P, got {n} and {np.shape(P0)}")
+        if n not in (3, 5, 6) or np.shape(P0) != (n, n):
+            raise ValueError(f"PlanarUkf: state must be 3, 5 or 6 long with a matching P, got {n} and {np.shape(P0)}")
         points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
         self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=2, dt=0.1, hx=_hx, fx=_motion, points=points,
                                           residual_x=_residual_x)
         self._ukf.x = np.asarray(x0, dtype=float).copy()
         self._ukf.P = nearest_pd(np.asarray(P0, dtype=float))
         self._h_pos, self._h_theta = _rows(n, 0, 1), _rows(n, 2)
-        self._h_speed = _rows(n, 3) if n == 5 else None
+        if n == 6:
+            self._h_theta[0, 5] = 1.0  # the compass reads theta + beta
+        self._h_speed = _rows(n, 3) if n >= 5 else None
 
     @property
     def x(self) -> np.ndarray:
@@ -116,16 +123,17 @@ class PlanarUkf:
         self._ukf.x = np.asarray(x, dtype=float).copy()
         self._ukf.P = np.asarray(P, dtype=float).copy()
 
-    def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray, dt: float = 0.1) -> None:
+    def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray, dt: float = 0.1,
+                bias_decay: float = 1.0) -> None:
         """Propagate by one body-frame increment (metres, metres, rad) over dt seconds with process noise Q
-        (n x n; dt matters only for the taco+ speed states)."""
+        (n x n; dt matters only for the taco+ speed states; bias_decay only for the compass bias)."""
         ukf = self._ukf
         ukf.Q = Q
         try:
-            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta, bias_decay=bias_decay)
         except np.linalg.LinAlgError:
             ukf.P = nearest_pd(ukf.P, floor=1e-6)
-            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta)
+            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta, bias_decay=bias_decay)
         ukf.x[2] = _wrap(ukf.x[2])
         ukf.P = nearest_pd(ukf.P)
 
@@ -154,9 +162,10 @@ class PlanarUkf:
         ukf.x[2] = _wrap(ukf.x[2])
 
     def update_heading(self, theta: float, sigma: float) -> None:
-        """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi])."""
+        """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi]); with the
+        compass-bias state the prediction is theta + beta."""
         ukf = self._ukf
-        innovation = np.array([_wrap(theta - ukf.x[2])])
+        innovation = np.array([_wrap(theta - float(self._h_theta[0] @ ukf.x))])
         ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, self._h_theta, innovation, np.array([[sigma * sigma]]))
         ukf.x[2] = _wrap(ukf.x[2])
 
