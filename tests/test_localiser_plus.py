@@ -60,6 +60,8 @@ def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
     # the oracle's noise is a third of the paper's w -> sigma mapping (0.5 / 1.0 m vs 1.5 / 3.0 m at w = 1):
     # the adaptive scale finds it (floor 0.3)
     assert 0.3 <= loc.fix_scale.scale <= 0.5
+    extra = loc.estimate().extra
+    assert extra["fix_scale"] == loc.fix_scale.scale and abs(extra["compass_bias"]) < 0.02
     assert len(loc.queries) < 0.5 * len(paper.queries)
     assert abs(_rms(err1) - _rms(err)) < 0.3  # rewind/replay keeps the speed feedback consistent
     assert np.mean(err <= 3.0 * np.maximum(sig, 1e-3)) >= 0.95  # honest uncertainty

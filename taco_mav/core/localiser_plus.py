@@ -221,7 +221,9 @@ class PlusLocaliser(Localiser):
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         est = super().estimate()
-        est.extra.update(lock=self.lock.state.value, speed_error=float(self.ukf.x[3]), accel_bias=float(self.ukf.x[4]),
+        x = self.ukf.x
+        est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
+                         compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
                          stationary=self._zupt)
         return est
 
