@@ -148,9 +148,7 @@ class Localiser:
         if self.record:
             self._graph_x.append(tick.x[:3].copy())
             self._graph_inc.append((inc.d_fwd, inc.d_left, inc.d_theta))
-            s_f, s_l = process_sigmas(tick.terms.epsilon, self.p.sigma_fwd_min_m, self.p.sigma_fwd_k,
-                                      self.p.sigma_lat_min_m, self.p.sigma_lat_k)
-            self._graph_sigma.append(0.5 * (s_f + s_l))
+            self._graph_sigma.append(self._odometry_sigma(tick))
             self._record_track(self.t)
         self._maybe_trigger()
 
@@ -176,6 +174,13 @@ class Localiser:
         s_f, s_l = process_sigmas(terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
         Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
+
+    def _odometry_sigma(self, tick: _Tick) -> float:
+        """The smoother's isotropic odometry sigma for this frame, metres: 1/2 (sigma_fwd + sigma_lat) of the
+        paper's process noise (Sec. III-G uses the filter's own noise)."""
+        p = self.p
+        s_f, s_l = process_sigmas(tick.terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
+        return 0.5 * (s_f + s_l)
 
     def _after_heading(self, tick: _Tick) -> None:
         """Hook for measurement updates after the compass (taco+: zero-velocity update); none in paper mode."""

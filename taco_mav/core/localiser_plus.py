@@ -75,6 +75,14 @@ class PlusLocaliser(Localiser):
         Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q)
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
 
+    def _odometry_sigma(self, tick: _Tick) -> float:
+        """The smoother's odometry sigma for this frame, metres: taco+'s own position process noise plus what
+        the speed-error uncertainty moves the frame by (sigma_dv dt), instead of the paper's >= 1 m."""
+        inc = tick.inc
+        Q = process_noise_plus(float(tick.x[2]), max(inc.dt, 1e-6), inc.distance, self.q)
+        return max(math.sqrt(0.5 * float(np.trace(Q[:2, :2]))) + math.sqrt(max(float(tick.P[3, 3]), 0.0)) * inc.dt,
+                   1e-3)
+
     def _after_heading(self, tick: _Tick) -> None:
         if tick.stationary:  # true speed 0: dv = -(preintegrated speed at the frame end)
             self.ukf.update_speed_error(-tick.inc.speed_end, self.q.zupt_sigma_mps)
