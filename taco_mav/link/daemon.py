@@ -25,11 +25,11 @@ import numpy as np
 
 from taco_mav.config import Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.types import ImuSample
 from taco_mav.cvgl.base import Matcher
 from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
+from taco_mav.link.anchor import Anchor
 from taco_mav.link.connection import Link
 from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
 from taco_mav.link.eventlog import EventLog
@@ -82,14 +82,12 @@ class Daemon:
         self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status, matcher)
         self.linkwatch = LinkWatch(options.link_timeout_s)
         self.loc: Localiser | None = None
-        self.origin: encoders.Origin | None = None
-        self._start_speed, self._start_course = 0.0, None  # m/s, NED rad
+        self.anchor = Anchor(self.params)  # origin and Localiser generations (+1 at each re-anchoring)
         self.attitude: AttitudeReading | None = None
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.last_imu: ImuReading | None = None
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self._last_imu_clock = -math.inf
-        self._generation = 0  # Localiser generation: +1 at each (re-)anchoring; older fixes are dropped
         self._last_status: dict[str, float] = {}
         self._thread: threading.Thread | None = None
         self.exit_code: int | None = None
@@ -182,8 +180,8 @@ class Daemon:
             except Exception:  # noqa: BLE001 - one bad message must never stop the loop
                 log.exception("handling %s", msg.get_type())
                 self.stats.dropped["handler_error"] += 1
-        self.fixes.drain(self.loc, self._generation)
-        self.fixes.poll(self.loc, self._generation)
+        self.fixes.drain(self.loc, self.anchor.generation)
+        self.fixes.poll(self.loc, self.anchor.generation)
         self._periodic(self.clock())
 
     def _periodic(self, now: float) -> None:
@@ -290,7 +288,7 @@ class Daemon:
             if self.origin is None:
                 self.stats.dropped["imu_before_origin"] += 1
                 return
-            self._make_localiser(r.t)
+            self.loc = self.anchor.localiser(r.t, self.attitude.yaw)
         a = self.attitude
         assert self.loc is not None
         self.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
@@ -303,31 +301,19 @@ class Daemon:
             return
         self.fixes.on_pose(self.last_imu.t, pose, self.origin)
 
-    # ------------------------------------------------------------------ origin, localiser, reboot
-    def _set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None, source: str) -> None:
-        self.origin = encoders.Origin.from_latlon(lat, lon, alt)
-        self._start_speed, self._start_course = speed, course
-        log.info("origin from %s: %.7f, %.7f, %.1f m (UTM EPSG:%d), speed %.2f m/s", source, lat, lon, alt,
-                 self.origin.projector.epsg, speed)
-        self.events.write("origin", source=source, lat=lat, lon=lon, alt=alt, speed=speed, course_ned=course,
-                          epsg=self.origin.projector.epsg, convergence_rad=self.origin.convergence)
-        self._status(SEV_INFO, f"origin {lat:.6f},{lon:.6f} ({source})", key=None)
-        self.fixes.on_origin(self.origin)
+    # ------------------------------------------------------------------ origin and re-anchoring
+    @property
+    def origin(self) -> encoders.Origin | None:
+        return self.anchor.origin
 
-    def _make_localiser(self, t: float, xy: tuple[float, float] = (0.0, 0.0), heading: float | None = None,
-                        speed: float | None = None, sigma_xy: float | None = None) -> None:
-        assert self.origin is not None and self.attitude is not None
-        conv = self.origin.convergence
-        if heading is None:
-            use_course = self._start_course is not None and self._start_speed > 1.0
-            psi = self._start_course if use_course else self.attitude.yaw
-            heading = math.remainder(math.pi / 2 - psi + conv, 2 * math.pi)
-        params = self.params if sigma_xy is None else dataclasses.replace(self.params, initial_sigma_xy_m=sigma_xy)
-        self.loc = make_localiser(params, t, xy[0], xy[1], heading, self._start_speed if speed is None else speed,
-                             record=False, heading_offset=conv)
-        self._generation += 1
-        log.info("localiser anchored at t=%.3f s, xy (%.1f, %.1f) m, heading %.1f deg", t, xy[0], xy[1],
-                 math.degrees(heading))
+    def _set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None, source: str) -> None:
+        origin = self.anchor.set_origin(lat, lon, alt, speed, course)
+        log.info("origin from %s: %.7f, %.7f, %.1f m (UTM EPSG:%d), speed %.2f m/s", source, lat, lon, alt,
+                 origin.projector.epsg, speed)
+        self.events.write("origin", source=source, lat=lat, lon=lon, alt=alt, speed=speed, course_ned=course,
+                          epsg=origin.projector.epsg, convergence_rad=origin.convergence)
+        self._status(SEV_INFO, f"origin {lat:.6f},{lon:.6f} ({source})", key=None)
+        self.fixes.on_origin(origin)
 
     def _reboot(self, t_last: float, t_new: float) -> None:
         """Autopilot clock went back: re-anchor at the current estimate on the new clock."""
@@ -339,26 +325,19 @@ class Daemon:
         self.clockmap.reset()
         self.fixes.clear_truth()
         if self.loc is not None and self.attitude is not None:
-            est = self.loc.estimate()
-            self._make_localiser(t_new, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
-                                 max(est.sigma_h, self.params.initial_sigma_xy_m))
+            self.loc = self.anchor.restarted(self.loc, self.attitude.yaw, t_new)
         self.last_imu = None
 
     def _imu_gap(self, t_last: float, t_new: float) -> None:
         """No IMU from t_last to t_new (autopilot s), longer than the preintegrator bridges (imu.max_dt_s): the
         motion in between is unknown. Re-anchor at the estimate carried on at its speed and heading, with the
-        1-sigma grown over the gap (`stall_sigma`), so the output stays degraded until fixes bring it back."""
-        assert self.loc is not None
-        gap = t_new - t_last
-        est = self.loc.estimate()
+        1-sigma grown over the gap, so the output stays degraded until fixes bring it back."""
+        assert self.loc is not None and self.attitude is not None
+        c = self.anchor.carried(self.loc, t_last, t_new)
         self.stats.imu_gaps += 1
-        speed = est.speed if math.isfinite(est.speed) else 0.0
-        d = speed * (t_new - est.t)
-        xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
-        sigma = stall_sigma(est.sigma_h, speed, gap)
-        log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", gap, abs(d), sigma)
-        self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=sigma, carried_m=d)
-        self._make_localiser(t_new, xy, est.theta, speed, max(sigma, self.params.initial_sigma_xy_m))
+        log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", t_new - t_last, abs(c.carried_m), c.sigma)
+        self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=c.sigma, carried_m=c.carried_m)
+        self.loc = self.anchor.localiser(t_new, self.attitude.yaw, c.xy, c.heading, c.speed, c.sigma)
 
     # ------------------------------------------------------------------ outputs
     def _send_outputs(self, now: float) -> None:
