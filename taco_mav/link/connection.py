@@ -27,6 +27,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError, TacoError  # noqa: E402
 from taco_mav.link import signing  # noqa: E402
+from taco_mav.link.reconnect import open_tcp  # noqa: E402
 from taco_mav.link.tlog import TlogWriter  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -71,9 +72,12 @@ class Link:
         key = signing.load_key(signing_key) if isinstance(signing_key, (str, Path)) else signing_key
         self.sysid_fixed = sysid != 0
         try:
-            self.conn = mavutil.mavlink_connection(device, baud=baud, source_system=sysid or 1,
-                                                   source_component=compid, dialect="ardupilotmega",
-                                                   autoreconnect=True)
+            if device.startswith("tcp:"):  # bounded connect attempts (reconnect.py)
+                self.conn = open_tcp(device, sysid or 1, compid, "ardupilotmega")
+            else:
+                self.conn = mavutil.mavlink_connection(device, baud=baud, source_system=sysid or 1,
+                                                       source_component=compid, dialect="ardupilotmega",
+                                                       autoreconnect=True)
         except (OSError, ValueError) as exc:
             raise TacoError(f"--connect {conn!r}: cannot open ({exc})") from None
         self.mav = self.conn.mav

@@ -1,20 +1,26 @@
-"""Non-blocking reconnects for a pymavlink TCP client (`tcp:HOST:PORT` with autoreconnect).
+"""Bounded connects and non-blocking reconnects for a pymavlink TCP client (`tcp:HOST:PORT`).
 
-pymavlink's `mavtcp` reconnects inside `recv`/`write`: up to 6 connect attempts with a 1 s sleep between
-them, then it raises, and tries again at the next call. In the daemon loop that blocks everything (outputs,
-health, shutdown) for about 6 s at a time while the autopilot is away, and after a successful reconnect the
-connection's `fd` (which the loop's select() waits on) still names the old socket. `pace_tcp_reconnect`
-changes one connection object so that a reconnect is a single connect attempt, at most one per `interval_s`;
-between attempts `recv` returns no data and `write` drops the packet (as a cut radio would).
+pymavlink's `mavtcp` connects with a blocking `socket.connect`: to a host that drops SYNs (down, firewalled,
+wrong address on a routed network) each attempt blocks for the kernel's SYN timeout (about 2 min on Linux),
+six attempts at start-up. It also reconnects inside `recv`/`write`: up to 6 attempts with a 1 s sleep between
+them, then it raises, and tries again at the next call; in the daemon loop that blocks everything (outputs,
+health, shutdown), and after a reconnect the connection's `fd` (which the loop's select() waits on) still names
+the old socket.
 
-A connect to a host that is down without refusing (no RST) still blocks for the kernel's SYN timeout: use it
-on loopback or a LAN, or a serial/UDP link otherwise.
+- `TimedTcp` is `mavtcp` with each start-up attempt bounded by `connect_timeout_s`.
+- `pace_tcp_reconnect` changes one connection so that a reconnect never blocks: a non-blocking connect is
+  started at most once per `interval_s`, polled at each later `recv`/`write`, and given up after
+  `connect_timeout_s`; meanwhile `recv` returns no data and `write` drops the packet (as a cut radio would).
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
+import os
+import select
+import socket
 import time
 from typing import Any, Callable
 
@@ -23,35 +29,93 @@ from pymavlink import mavutil
 log = logging.getLogger(__name__)
 
 
-def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic) -> bool:
-    """Make `conn` (a pymavlink connection) reconnect without blocking, one attempt per `interval_s` seconds
-    of `clock`. Returns False (and changes nothing) unless it is a TCP client with autoreconnect."""
+CONNECT_TIMEOUT_S = 2.0  # per TCP connect attempt, s; a LAN or loopback peer answers within milliseconds
+
+
+class TimedTcp(mavutil.mavtcp):
+    """pymavlink's TCP client whose start-up connect attempts each give up after `connect_timeout_s`."""
+
+    connect_timeout_s = CONNECT_TIMEOUT_S
+
+    def do_connect(self) -> None:
+        attempts = max(int(self.retries), 1)
+        for k in range(attempts):
+            try:
+                sock = socket.create_connection(self.destination_addr, timeout=self.connect_timeout_s)
+                break
+            except OSError:
+                self.port = None
+                if k == attempts - 1:
+                    raise
+                time.sleep(self.reconnect_delay)
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.port = sock
+
+
+def open_tcp(device: str, source_system: int, source_component: int, dialect: str) -> TimedTcp:
+    """A `TimedTcp` for "tcp:HOST:PORT" with autoreconnect, as mavutil.mavlink_connection would build a mavtcp."""
+    mavutil.set_dialect(dialect)
+    return TimedTcp(device[4:], autoreconnect=True, source_system=source_system, source_component=source_component)
+
+
+def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
+                       connect_timeout_s: float = CONNECT_TIMEOUT_S) -> bool:
+    """Make `conn` (a pymavlink connection) reconnect without blocking: a non-blocking connect at most once per
+    `interval_s` seconds of `clock`, abandoned after `connect_timeout_s`. Returns False (and changes nothing)
+    unless it is a TCP client with autoreconnect."""
     if not isinstance(conn, mavutil.mavtcp) or not conn.autoreconnect:
         return False
-    conn.retries, conn.reconnect_delay = 1, 0.0  # do_connect: one attempt, no sleep, raise when refused
-    connect, receive = conn.reconnect, conn.recv
     last_try = [-math.inf]
+    pending: list[Any] = [None, 0.0]  # the socket being connected, when it started
+
+    def start(now: float) -> socket.socket:
+        if conn.port is not None:
+            conn.port.close()
+            conn.port = None
+        if now - last_try[0] < interval_s:
+            raise ConnectionRefusedError("reconnect paced: next attempt later")
+        last_try[0] = now
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setblocking(False)
+        err = sock.connect_ex(conn.destination_addr)
+        if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EALREADY):
+            sock.close()
+            raise ConnectionRefusedError(err, os.strerror(err))
+        pending[:] = [sock, now]
+        return sock
 
     def reconnect() -> None:
         now = clock()
-        if now - last_try[0] < interval_s:
-            if conn.port is not None:
-                conn.port.close()
-                conn.port = None
-            raise ConnectionRefusedError("reconnect paced: next attempt later")
-        last_try[0] = now
-        connect()
-        conn.fd = conn.port.fileno()  # select() must watch the new socket
+        sock = pending[0] if pending[0] is not None else start(now)
+        _, writable, _ = select.select([], [sock], [], 0)
+        if not writable:
+            if now - pending[1] >= connect_timeout_s:
+                sock.close()
+                pending[0] = None
+                raise TimeoutError(f"TCP connect to {conn.destination_addr[0]}:{conn.destination_addr[1]} timed out")
+            raise BlockingIOError(errno.EINPROGRESS, "TCP connect in progress")
+        pending[0] = None
+        err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if err:
+            sock.close()
+            raise ConnectionRefusedError(err, os.strerror(err))
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        conn.port, conn.fd = sock, sock.fileno()  # select() must watch the new socket
         log.info("TCP link %s:%d reconnected", *conn.destination_addr)
 
+    receive = conn.recv
+
     def recv(n: int | None = None) -> bytes:
-        if conn.port is None:
-            try:
+        try:
+            if conn.port is None:
                 reconnect()
-            except OSError as exc:
-                log.debug("TCP reconnect: %s", exc)
-                return b""
-        return receive(n)
+            return receive(n)  # on EOF or reset pymavlink calls reconnect() itself
+        except OSError as exc:
+            if conn.port is not None:
+                raise
+            log.debug("TCP reconnect: %s", exc)
+            return b""
 
     conn.reconnect, conn.recv = reconnect, recv
     return True
