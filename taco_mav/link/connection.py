@@ -63,11 +63,13 @@ class Link:
     `send(msg)` packs with our identity, writes and logs. Not thread-safe: use from the daemon loop only.
     signing_key: a key file (or the 32 key bytes): sign what we send, refuse unsigned and wrongly signed input.
     rejected: the Counter refused frames are counted in (shared with the decoders' by the daemon).
+    udp_client_timeout_s: on a udpin link, peers not heard from for this long stop being sent to (the last
+    one is kept; 0 keeps every peer ever heard, pymavlink's default).
     """
 
     def __init__(self, conn: str, sysid: int, compid: int, baud: int = 921600, tlog: Path | None = None,
                  wall_clock: Callable[[], float] = time.time, signing_key: Path | bytes | None = None,
-                 rejected: Counter[str] | None = None) -> None:
+                 rejected: Counter[str] | None = None, udp_client_timeout_s: float = 0.0) -> None:
         device, baud = parse_connection(conn, baud)
         key = signing.load_key(signing_key) if isinstance(signing_key, (str, Path)) else signing_key
         self.sysid_fixed = sysid != 0
@@ -77,7 +79,7 @@ class Link:
             else:
                 self.conn = mavutil.mavlink_connection(device, baud=baud, source_system=sysid or 1,
                                                        source_component=compid, dialect="ardupilotmega",
-                                                       autoreconnect=True)
+                                                       autoreconnect=True, udp_timeout=udp_client_timeout_s)
         except (OSError, ValueError) as exc:
             raise TacoError(f"--connect {conn!r}: cannot open ({exc})") from None
         self.mav = self.conn.mav

@@ -118,7 +118,8 @@ class Daemon:
         self.fixes.open(self.events)
         self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
                          tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock,
-                         signing_key=opt.signing_key, rejected=self.decoders.rejected)
+                         signing_key=opt.signing_key, rejected=self.decoders.rejected,
+                         udp_client_timeout_s=opt.link_timeout_s)
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
