@@ -172,6 +172,8 @@ class PlusConfig:
     cross_max_m: float = field(default=10.0, metadata=_rng(0.0))
     # Innovation gate (beside the yaw gate) and consensus over the crops.
     chi2_gate: float = field(default=13.82, metadata=_rng(0.0, open_lo=True))  # 2 dof, 99.9 %
+    # the gate for an answer that no other crop of the trigger agrees with (consensus support 1), 2 dof, 95 %
+    chi2_gate_single: float = field(default=5.99, metadata=_rng(0.0, open_lo=True))
     consensus_radius_m: float = field(default=3.0, metadata=_rng(0.0))
     w_min: float = field(default=0.2, metadata=_rng(0.0, 1.0))  # weaker answers count as misses
     # Adaptive fix noise: the paper's w -> sigma mapping (Sec. III-F) times a scale learnt from the innovations of

@@ -99,6 +99,45 @@ def test_planted_30m_silent_outlier_is_rejected():
     assert loc.lock.losses == 0
 
 
+def _answer_with_nis(loc, q, target_nis: float, agreeing: int) -> list[MatchResult]:
+    """Answers to `q` placing the vehicle off the filter's estimate, to the left, by the distance that gives
+    `target_nis` under the filter's own S = P + R; `agreeing` crops say so (w 0.7), the rest are misses."""
+    sc = loc.fix_scale.scale
+    s_f, s_l = (sc * v for v in loc._fix_sigmas(0.7))
+    c, s = math.cos(q.heading), math.sin(q.heading)
+    R = np.array([[c, -s], [s, c]]) @ np.diag([s_f**2, s_l**2]) @ np.array([[c, s], [-s, c]])
+    u = np.array([-s, c])  # left of the heading
+    d = math.sqrt(target_nis / float(u @ np.linalg.solve(loc.ukf.P[:2, :2] + R, u)))
+    claimed = loc.ukf.x[:2] + d * u
+    out = []
+    for k, centre in enumerate(q.crop_centres):
+        rel = claimed - centre
+        t = np.array([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]])
+        out.append(MatchResult(np.eye(2), t, 0.7) if k < agreeing else MatchResult(np.eye(2), np.zeros(2), 0.05))
+    return out
+
+
+def test_an_uncorroborated_answer_meets_the_tighter_gate():
+    """An answer no other crop agrees with must pass the 95 % gate (5.99); corroborated, the 99.9 % one (13.82)."""
+    d = _drive()
+    oracle = OracleMatcher(d, seed=2)
+    outcomes = {}
+    for agreeing in (1, 5):
+        loc = make_localiser(PLUS, 0.0, heading=float(d.theta[0]), speed=float(d.speed[0]))
+        for smp in d.samples:
+            loc.add_imu(smp)
+            q = loc.poll_query()
+            if q is None:
+                continue
+            planted = q.capture_t > 60.0 and agreeing not in outcomes
+            out = loc.add_fix(q.query_id, _answer_with_nis(loc, q, 9.0, agreeing) if planted else oracle.answer(q))
+            if planted:
+                outcomes[agreeing] = out
+                break
+    assert outcomes[1].reason == "innovation_gate" and 8.5 < outcomes[1].nis < 9.5
+    assert outcomes[5].accepted and 8.5 < outcomes[5].nis < 9.5
+
+
 def test_displaced_estimate_is_detected_and_recovered():
     d = _drive()
     loc, err, sig = run_plus(d, x0=40.0)  # the filter believes it starts 40 m east of the truth, sigma 1 cm

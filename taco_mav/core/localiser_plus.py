@@ -180,7 +180,7 @@ class PlusLocaliser(Localiser):
         if state is LockState.LOST:  # relocalise: the candidate replaces the position (the jump enters P)
             tick.P = tick.P.copy()
             tick.P[:2, :2] += jump * jump * np.eye(2)
-        elif nis > qp.chi2_gate:
+        elif nis > (qp.chi2_gate if c.support > 1 else qp.chi2_gate_single):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))

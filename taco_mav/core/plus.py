@@ -53,6 +53,7 @@ class PlusParams:
     cross_max_m: float = 10.0
     # gating and consensus
     chi2_gate: float = 13.82  # 2-dof chi-square, 99.9 %
+    chi2_gate_single: float = 5.99  # ... for an answer no other crop agrees with, 95 %
     w_min: float = 0.2  # weaker answers count as misses
     consensus_radius_m: float = 3.0
     # adaptive fix noise
