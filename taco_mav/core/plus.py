@@ -3,11 +3,15 @@
 - Process noise from the IMU's error growth instead of sigma_fwd >= 1 m per frame: a small position random
   walk plus a distance-proportional term, with the forward-speed error and the forward accelerometer bias
   carried as states (x[3] = dv, m/s: true minus preintegrated speed; x[4] = b, m/s^2: the preintegrated
-  speed drifts by +b per second), each a random walk.
+  speed drifts by +b per second), each a random walk; optionally the compass bias (x[5] = beta, rad: the
+  compass reads theta + beta), a first-order Gauss-Markov process.
+- Adaptive fix noise (`FixNoiseScale`): the paper's w -> sigma mapping scaled by what the innovations of
+  accepted fixes say the matcher's real accuracy is.
 - A covariance trigger: ask for a fix when the filter's own 1-sigma horizontal uncertainty reaches
   `trigger_sigma_m` (or `trigger_time_s` passed while moving); the search cross is centred on the current
   estimate (no forward bias: our UKF is predicted to the capture time) and sized by that uncertainty.
-- Consensus over the candidates instead of argmax w, and a chi-square innovation gate beside the yaw gate.
+- Consensus over the candidates instead of argmax w, and a chi-square innovation gate beside the yaw gate
+  (tighter for an answer no other crop agrees with).
 - A hexagonal grid search, sized by the uncertainty, while lock is lost (`lock.py`).
 
 All lengths metres, angles radians, times seconds; body offsets (forward, left); world ENU.
@@ -173,7 +177,7 @@ class FixNoiseScale:
         return math.sqrt(self.s2)
 
     def update(self, innov: np.ndarray, P: np.ndarray, R0: np.ndarray) -> float:
-        """Add one accepted fix; returns the new scale. A sample is capped at 4 (hi^2) so one outlier that
+        """Add one accepted fix; returns the new scale. A sample is capped at (2 hi)^2, so one outlier that
         slipped through the gates moves s^2 by at most that over `window`."""
         Ri = np.linalg.inv(R0)
         sample = 0.5 * (float(innov @ Ri @ innov) - float(np.trace(P @ Ri)))

@@ -1,4 +1,4 @@
-"""3-state UKF on (x, y, theta) with anisotropic CVGL noise (paper Sec. III-F).
+"""3-state UKF on (x, y, theta) with anisotropic CVGL noise (paper Sec. III-F); taco+ adds 2 or 3 states.
 
 State: x, y ENU metres relative to the origin; theta ENU heading, radians. Predict propagates van der Merwe
 sigma points (filterpy) through the body-frame rigid-motion model with a preintegrated increment
