@@ -54,7 +54,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         sequences=tuple(s.strip() for s in args.sequences.split(",") if s.strip()) if args.sequences else (),
         drives=tuple(Path(d) for d in args.drive), matcher=args.matcher, ablations=ablations, seed=args.seed,
         latency_s=args.matcher_latency, apply_on_arrival=args.apply_on_arrival, estimator=args.estimator,
-        plots=not args.no_plots, progress=not args.quiet)
+        cross_area=args.cross_area, plots=not args.no_plots, progress=not args.quiet)
     results = evaluate(req)
     print((Path(args.out) / "table.md").read_text())
     s = results["summary"]
@@ -170,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--matcher-latency", type=float, default=0.0, help="deliver each fix S seconds after capture")
     p.add_argument("--apply-on-arrival", action="store_true", help="apply late fixes naively, as if current")
     p.add_argument("--estimator", choices=("paper", "taco+"), help="estimator mode (default: the profile's)")
+    p.add_argument("--cross-area", action="store_true",
+                   help="emulator: FG2's cross-area error figures for every drive (default: the profile's list)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.set_defaults(func=_cmd_eval)
 

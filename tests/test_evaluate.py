@@ -119,3 +119,12 @@ def test_taco_plus_beats_paper_mode_on_real_kitti_at_a_fraction_of_the_fixes(tmp
         assert q["camera_duty_cycle"] < 0.05
         assert q["lock_losses"] == 0 and q["honest_fraction"] >= 0.99
         assert q["ate_smoothed_m"] < q["ate_m"]
+
+
+def test_cross_area_flag_uses_fg2s_cross_area_figures(tmp_path, kitti_root):
+    same = evaluate(_req(tmp_path, kitti_root, estimator="taco+"))
+    cross = evaluate(_req(tmp_path, kitti_root, estimator="taco+", cross_area=True, out=tmp_path / "x"))
+    assert cross["config"]["emulator"]["cross_area_sequences"] == ["04"]
+    assert cross["sequences"]["04"]["ate_m"] > 1.5 * same["sequences"]["04"]["ate_m"]  # 4.15 m vs 0.51 m fixes
+    with pytest.raises(ConfigError, match="--cross-area"):
+        evaluate(_req(tmp_path, kitti_root, cross_area=True, matcher="classical", out=tmp_path / "y"))

@@ -48,6 +48,7 @@ class EvalRequest:
     latency_s: float = 0.0
     apply_on_arrival: bool = False
     estimator: str | None = None
+    cross_area: bool = False  # the emulator's FG2 cross-area figures for every drive (else per the profile)
     plots: bool = True
     progress: bool = True
 
@@ -64,6 +65,10 @@ def resolve_profile(req: EvalRequest) -> Profile:
             raise ConfigError(f"--estimator: {req.estimator!r} is not one of paper, taco+") from None
         profile = replace_in(profile, "estimator", est)
     profile = replace_in(profile, "emulator.seed", int(req.seed))
+    if req.cross_area:
+        if profile.matcher != "emulator":
+            raise ConfigError(f"--cross-area: only the emulator has cross-area figures (matcher is {profile.matcher})")
+        profile = replace_in(profile, "emulator.cross_area_sequences", tuple(req.sequences))
     if req.apply_on_arrival:
         profile = replace_in(profile, "latency.apply_on_arrival", True)
     if req.latency_s < 0:
@@ -106,7 +111,7 @@ def _key(drive) -> str:
 def _run_all(drives: list, profile: Profile, req: EvalRequest) -> dict[str, DriveRun]:
     runs = {}
     for drive in drives:
-        cross = (drive.sequence or "") in profile.emulator.cross_area_sequences
+        cross = req.cross_area or (drive.sequence or "") in profile.emulator.cross_area_sequences
         runs[_key(drive)] = run_drive(drive, profile, latency_s=req.latency_s, progress=req.progress, cross_area=cross)
     return runs
 
