@@ -145,3 +145,6 @@ def test_taco_plus_lock_loss_is_logged_and_announced(tmp_path: Path) -> None:
     assert any("lock lost" in t for t in texts), texts
     crops = [len(e["crop_centres"]) for e in events if e.get("event") == "fix" and "crop_centres" in e]
     assert max(crops) > 5 and daemon.summary()["fixes"].get("weak", 0) >= 4
+    state = daemon.summary()["estimator"]  # the taco+ internals are in every stats line
+    assert state["mode"] == "taco+" and state["lock"] in ("lost", "confirming", "locked")
+    assert state["fix_scale"] == 1.0 and {"speed_error", "accel_bias", "compass_bias"} <= set(state)

@@ -396,7 +396,17 @@ class Daemon:
                 "stuck_matchers": self.fixes.stuck,
                 "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
                 "clock_source": self.clockmap.source, "healthy": self.health.healthy,
-                "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0}
+                "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
+                "estimator": self._estimator_state()}
+
+    def _estimator_state(self) -> dict[str, Any] | None:
+        """The estimate's 1-sigma (m) and the mode's internal state (taco+: lock, speed error m/s, accelerometer
+        bias m/s^2, compass bias rad, fix-noise scale) for the periodic stats line; non-finite values as None."""
+        if self.loc is None:
+            return None
+        est = self.loc.estimate()
+        state = {"mode": self.profile.estimator.value, "sigma_h_m": est.sigma_h, **est.extra}
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in state.items()}
 
 
 def run_daemon(profile: Profile, options: DaemonOptions) -> int:
