@@ -12,6 +12,7 @@ from taco_mav.core.lock import LockState
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus import PlusParams
 from taco_mav.core.types import MatchResult
+from taco_mav.core.ukf import fix_covariance
 from test_localiser import _drive
 
 PLUS = LocaliserParams(plus=PlusParams())
@@ -104,17 +105,11 @@ def _answer_with_nis(loc, q, target_nis: float, agreeing: int) -> list[MatchResu
     `target_nis` under the filter's own S = P + R; `agreeing` crops say so (w 0.7), the rest are misses."""
     sc = loc.fix_scale.scale
     s_f, s_l = (sc * v for v in loc._fix_sigmas(0.7))
-    c, s = math.cos(q.heading), math.sin(q.heading)
-    R = np.array([[c, -s], [s, c]]) @ np.diag([s_f**2, s_l**2]) @ np.array([[c, s], [-s, c]])
-    u = np.array([-s, c])  # left of the heading
-    d = math.sqrt(target_nis / float(u @ np.linalg.solve(loc.ukf.P[:2, :2] + R, u)))
-    claimed = loc.ukf.x[:2] + d * u
-    out = []
-    for k, centre in enumerate(q.crop_centres):
-        rel = claimed - centre
-        t = np.array([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]])
-        out.append(MatchResult(np.eye(2), t, 0.7) if k < agreeing else MatchResult(np.eye(2), np.zeros(2), 0.05))
-    return out
+    u = np.array([-math.sin(q.heading), math.cos(q.heading)])  # left of the heading
+    S = loc.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
+    d = math.sqrt(target_nis / float(u @ np.linalg.solve(S, u)))
+    claimed = answers_at(q, loc.ukf.x[:2] + d * u, w=0.7, psi_res=0.0)
+    return claimed[:agreeing] + [MatchResult(np.eye(2), np.zeros(2), 0.05)] * (len(claimed) - agreeing)
 
 
 def test_an_uncorroborated_answer_meets_the_tighter_gate():

@@ -32,6 +32,13 @@ log = logging.getLogger(__name__)
 CONNECT_TIMEOUT_S = 2.0  # per TCP connect attempt, s; a LAN or loopback peer answers within milliseconds
 
 
+def _ready(sock: socket.socket) -> socket.socket:
+    """A connected TCP socket set up as pymavlink's mavtcp sets its own: non-blocking, Nagle off."""
+    sock.setblocking(False)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
+
 class TimedTcp(mavutil.mavtcp):
     """pymavlink's TCP client whose start-up connect attempts each give up after `connect_timeout_s`."""
 
@@ -48,9 +55,7 @@ class TimedTcp(mavutil.mavtcp):
                 if k == attempts - 1:
                     raise
                 time.sleep(self.reconnect_delay)
-        sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.port = sock
+        self.port = _ready(sock)
 
 
 def open_tcp(device: str, source_system: int, source_component: int, dialect: str) -> TimedTcp:
@@ -100,8 +105,7 @@ def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], f
         if err:
             sock.close()
             raise ConnectionRefusedError(err, os.strerror(err))
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        conn.port, conn.fd = sock, sock.fileno()  # select() must watch the new socket
+        conn.port, conn.fd = _ready(sock), sock.fileno()  # select() must watch the new socket
         log.info("TCP link %s:%d reconnected", *conn.destination_addr)
 
     receive = conn.recv
