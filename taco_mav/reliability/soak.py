@@ -76,8 +76,9 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def structure_sizes(daemon: Any) -> dict[str, tuple[int, int | None]]:
-    """(size, bound) of each daemon structure that grows with time or traffic; bound None = unbounded."""
+def structure_sizes(daemon: Any, before: frozenset[int] = frozenset()) -> dict[str, tuple[int, int | None]]:
+    """(size, bound) of each daemon structure that grows with time or traffic; bound None = unbounded.
+    "threads" counts the live threads whose ident is not in `before` (those alive when the run began)."""
     out: dict[str, tuple[int, int | None]] = {}
     st, fx = daemon.stats, daemon.fixes
     for name, dq in (("stats.imu_to_estimate_s", st.imu_to_estimate_s), ("stats.output_times", st.output_times),
@@ -93,7 +94,7 @@ def structure_sizes(daemon: Any) -> dict[str, tuple[int, int | None]]:
     out["fixes.results_queue"] = (fx._results.qsize(), None)
     out["fixes.stuck_workers"] = (len(fx._stuck), 2)
     out["counter_keys"] = (len(st.fixes) + len(st.dropped) + len(daemon.decoders.rejected), None)
-    out["threads"] = (threading.active_count(), None)
+    out["threads"] = (sum(t.ident not in before for t in threading.enumerate()), None)
     return out
 
 
@@ -119,15 +120,16 @@ def soak(hours: float = 1.0, speed: float = 20.0, log_dir: Path | None = None, s
                         wall_clock=sim.utc_now)
         samples: list[dict[str, Any]] = []
         wall0 = time.monotonic()
+        before = frozenset(t.ident for t in threading.enumerate() if t.ident is not None)
         daemon.start()
         try:
             sim.start()
             while not sim.join(timeout=sample_wall_s):
-                samples.append(_sample(daemon, sim, logs, wall0))
+                samples.append(_sample(daemon, sim, logs, wall0, before))
                 if progress and len(samples) % 30 == 0:
                     log.info("soak: %.0f of %.0f data s, RSS %.0f MiB", samples[-1]["data_s"], duration,
                              samples[-1]["rss_mb"])
-            samples.append(_sample(daemon, sim, logs, wall0))
+            samples.append(_sample(daemon, sim, logs, wall0, before))
         finally:
             daemon.stop()
             daemon.join(5.0)
@@ -144,11 +146,11 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _sample(daemon: Any, sim: Any, logs: Path, wall0: float) -> dict[str, Any]:
+def _sample(daemon: Any, sim: Any, logs: Path, wall0: float, before: frozenset[int]) -> dict[str, Any]:
     start = sim.play_start
     files = {p.name: p.stat().st_size for p in logs.iterdir() if p.is_file()} if logs.is_dir() else {}
     return {"wall_s": time.monotonic() - wall0, "data_s": 0.0 if start is None else sim.clock.now() - start,
-            "rss_mb": rss_mb(), "sizes": {k: v[0] for k, v in structure_sizes(daemon).items()},
+            "rss_mb": rss_mb(), "sizes": {k: v[0] for k, v in structure_sizes(daemon, before).items()},
             "log_bytes": sum(files.values())}
 
 
