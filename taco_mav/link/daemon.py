@@ -34,9 +34,10 @@ from taco_mav.link.connection import Link
 from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
-from taco_mav.link.health import Health, LinkWatch, stall_sigma
+from taco_mav.link.health import LinkWatch
 from taco_mav.link.imu_timeline import ImuTimeline, Verdict
 from taco_mav.link.options import DaemonOptions, DaemonStats
+from taco_mav.link.output import OutputStage
 from taco_mav.link.reconnect import pace_tcp_reconnect
 from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
@@ -44,7 +45,6 @@ from taco_mav.link.timesync import ClockMap
 
 log = logging.getLogger(__name__)
 
-OUTPUTS = ("gps_input", "global_position_sensor", "odometry")
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER = 6, 18
@@ -62,9 +62,6 @@ class Daemon:
                  wall_clock: Callable[[], float] = time.time, matcher: Matcher | None = None) -> None:
         if options.estimator is not None and options.estimator is not profile.estimator:
             profile = dataclasses.replace(profile, estimator=options.estimator)
-        bad = [m for m in profile.output.messages if m not in OUTPUTS]
-        if bad or not profile.output.messages:
-            raise ConfigError(f"output.messages: {bad or '[]'} not in {', '.join(OUTPUTS)}")
         if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
             raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
         options = dataclasses.replace(
@@ -78,7 +75,7 @@ class Daemon:
         self.stats = DaemonStats()
         self.decoders = Decoders()
         self.clockmap = ClockMap(clock)
-        self.health = Health(profile.output.degrade_accuracy_m, profile.output.recover_accuracy_m, profile.output.stall_s)
+        self.output = OutputStage(profile, self._health_changed)
         self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status, matcher)
         self.linkwatch = LinkWatch(options.link_timeout_s)
         self.loc: Localiser | None = None
@@ -344,35 +341,17 @@ class Daemon:
     def _send_outputs(self, now: float) -> None:
         if self.loc is None or self.origin is None or self.link is None:
             return
-        est = self.loc.estimate()
-        sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
-        imu_age = now - self._last_imu_clock
-        stall_s = self.profile.output.stall_s
-        if imu_age > stall_s and math.isfinite(sigma):  # no IMU: the vehicle may be anywhere within speed x age
-            grown = stall_sigma(sigma, est.speed, imu_age)
-            est = dataclasses.replace(est, cov_xy=est.cov_xy + (grown**2 - sigma**2) * np.eye(2))
-        change = self.health.update(sigma, imu_age)
-        if change:
-            log.warning("%s", change) if not self.health.healthy else log.info("%s", change)
-            self.events.write("health", text=change, healthy=self.health.healthy)
-            self._status(SEV_WARNING if not self.health.healthy else SEV_INFO, change, key=None)
-        cfg = self.profile.output
-        sol = encoders.solution(est, self.origin, cfg, self.health.healthy)
-        mav = self.link.mav
-        for name in cfg.messages:
-            if name == "gps_input":
-                msg = encoders.gps_input(mav, sol, cfg, self.wall_clock())
-            elif name == "global_position_sensor":
-                now_ap = self.clockmap.now_autopilot()
-                msg = encoders.global_position_sensor(mav, sol, cfg, self.link.target_system,
-                                                      sol.t_autopilot if now_ap is None else now_ap)
-            else:
-                a = self.attitude
-                gyro = self.last_imu.gyro_frd if self.last_imu else (0.0, 0.0, 0.0)
-                msg = encoders.odometry(mav, sol, cfg, a.roll if a else 0.0, a.pitch if a else 0.0, gyro,
-                                        self.profile.ukf.compass_sigma_rad, self.stats.reboots)
+        gyro = self.last_imu.gyro_frd if self.last_imu else (0.0, 0.0, 0.0)
+        for msg in self.output.messages(self.loc.estimate(), now - self._last_imu_clock, self.origin, self.link.mav,
+                                        self.wall_clock(), self.clockmap.now_autopilot(), self.link.target_system,
+                                        self.attitude, gyro, self.stats.reboots):
             self.link.send(msg)
         self.stats.output_times.append(now)
+
+    def _health_changed(self, text: str, healthy: bool) -> None:
+        log.info("%s", text) if healthy else log.warning("%s", text)
+        self.events.write("health", text=text, healthy=healthy)
+        self._status(SEV_INFO if healthy else SEV_WARNING, text, key=None)
 
     def _status(self, severity: int, text: str, key: str | None) -> None:
         """STATUSTEXT to the autopilot (and the log); `key` rate-limits by output.statustext_interval_s."""
@@ -395,7 +374,7 @@ class Daemon:
                 "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
                 "stuck_matchers": self.fixes.stuck,
                 "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
-                "clock_source": self.clockmap.source, "healthy": self.health.healthy,
+                "clock_source": self.clockmap.source, "healthy": self.output.health.healthy,
                 "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
                 "estimator": self._estimator_state()}
 

@@ -1,0 +1,70 @@
+"""The output stage: one Localiser estimate -> the GPS-style messages the autopilot gets at the output rate
+(GPS_INPUT for ArduPilot, GLOBAL_POSITION_SENSOR or ODOMETRY for PX4; `output.messages` picks them).
+
+Before encoding, the 1-sigma is grown when the IMU has gone quiet for longer than `output.stall_s` (the vehicle
+may be anywhere within speed x age, `health.stall_sigma`), and the health hysteresis (`health.Health`) decides
+whether the solution is reported as a 3D fix or degraded; a change of health is handed to `on_change(text,
+healthy)` for the log, the event file and a STATUSTEXT. Positions are ENU metres from `origin`, times are
+autopilot seconds, the accuracy is metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable
+
+import numpy as np
+
+from taco_mav.config import Profile
+from taco_mav.core.types import Estimate
+from taco_mav.errors import ConfigError
+from taco_mav.link import encoders
+from taco_mav.link.decoders import AttitudeReading
+from taco_mav.link.health import Health, stall_sigma
+
+__all__ = ["OUTPUTS", "OutputStage"]
+
+OUTPUTS = ("gps_input", "global_position_sensor", "odometry")
+
+
+class OutputStage:
+    """Encodes estimates for `profile.output.messages`; ConfigError when a name there is not in OUTPUTS."""
+
+    def __init__(self, profile: Profile, on_change: Callable[[str, bool], None]) -> None:
+        cfg = profile.output
+        bad = [m for m in cfg.messages if m not in OUTPUTS]
+        if bad or not cfg.messages:
+            raise ConfigError(f"output.messages: {bad or '[]'} not in {', '.join(OUTPUTS)}")
+        self.cfg = cfg
+        self.compass_sigma_rad = profile.ukf.compass_sigma_rad
+        self.health = Health(cfg.degrade_accuracy_m, cfg.recover_accuracy_m, cfg.stall_s)
+        self._on_change = on_change
+
+    def messages(self, est: Estimate, imu_age_s: float, origin: encoders.Origin, mav: Any, utc_s: float,
+                 autopilot_now_s: float | None, target_system: int, attitude: AttitudeReading | None,
+                 gyro_frd: tuple[float, float, float], reboots: int) -> list[Any]:
+        """The messages for `est`. imu_age_s: companion seconds since the last IMU sample; utc_s: UTC unix
+        seconds (GPS week/ms); autopilot_now_s: the autopilot clock now (None: not mapped yet, the estimate's
+        time is used); attitude and gyro_frd (rad/s, body FRD) fill ODOMETRY; reboots: its reset counter."""
+        finite = bool(np.all(np.isfinite(est.cov_xy)) and np.all(np.isfinite(est.xy)))
+        sigma = est.sigma_h if finite else float("nan")  # a non-finite estimate is reported as such
+        if imu_age_s > self.cfg.stall_s and math.isfinite(sigma):
+            grown = stall_sigma(sigma, est.speed, imu_age_s)
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + (grown**2 - sigma**2) * np.eye(2))
+        change = self.health.update(sigma, imu_age_s)
+        if change:
+            self._on_change(change, self.health.healthy)
+        sol = encoders.solution(est, origin, self.cfg, self.health.healthy)
+        out = []
+        for name in self.cfg.messages:
+            if name == "gps_input":
+                out.append(encoders.gps_input(mav, sol, self.cfg, utc_s))
+            elif name == "global_position_sensor":
+                t_ap = sol.t_autopilot if autopilot_now_s is None else autopilot_now_s
+                out.append(encoders.global_position_sensor(mav, sol, self.cfg, target_system, t_ap))
+            else:
+                a = attitude
+                out.append(encoders.odometry(mav, sol, self.cfg, a.roll if a else 0.0, a.pitch if a else 0.0,
+                                             gyro_frd, self.compass_sigma_rad, reboots))
+        return out
