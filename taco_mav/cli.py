@@ -63,6 +63,32 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_drift(args: argparse.Namespace) -> int:
+    import json
+
+    from taco_mav.config import load_profile
+    from taco_mav.datasets.tlog import load_tlog
+    from taco_mav.evaluation.drift import measure_drift, report_text
+    from taco_mav.evaluation.evaluate import EvalRequest, load_drives
+
+    profile = load_profile(args.profile)
+    drives = [load_tlog(Path(f), imu_message=args.imu_message) for f in args.tlog]
+    if args.sequences or args.drive or not drives:
+        drives += load_drives(EvalRequest(
+            out=Path("."), kitti_root=Path(args.kitti_root) if args.kitti_root else None,
+            sequences=tuple(s.strip() for s in args.sequences.split(",") if s.strip()) if args.sequences else (),
+            drives=tuple(Path(d) for d in args.drive)))
+    reports = [measure_drift(d, min_speed_mps=args.min_speed) for d in drives]
+    name = Path(args.profile).stem
+    print("\n\n".join(report_text(r, profile.plus, name) for r in reports))
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"profile": args.profile, "drives": [r.to_dict() for r in reports]}, indent=2) + "\n")
+        print(f"wrote {out}")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from taco_mav.config import Estimator, load_profile
     from taco_mav.link.daemon import DaemonOptions, run_daemon
@@ -174,6 +200,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="emulator: FG2's cross-area error figures for every drive (default: the profile's list)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("drift", parents=[common], help="measure a vehicle's dead-reckoning drift against ground "
+                       "truth and fit taco+'s process noise (plus: q_*) to it")
+    p.add_argument("--tlog", action="append", default=[], help="a MAVLink tlog recorded with GNSS on (repeatable)")
+    p.add_argument("--imu-message", help="tlog: which IMU message to use (default: the first present)")
+    p.add_argument("--kitti-root", help="KITTI raw root (with --sequences)")
+    p.add_argument("--sequences", help="odometry sequence ids, e.g. 04,05")
+    p.add_argument("--drive", action="append", default=[], help="a KITTI-layout drive or synthetic world dir")
+    p.add_argument("--profile", default="kitti", help="profile to compare with (name or YAML path; default kitti)")
+    p.add_argument("--min-speed", type=float, default=2.0, help="use windows above this truth speed, m/s")
+    p.add_argument("--out", help="JSON file for the measurements and the fit")
+    p.set_defaults(func=_cmd_drift)
 
     p = sub.add_parser("run", parents=[common], help="the daemon: MAVLink IMU + camera in, GPS_INPUT out")
     p.add_argument("--profile", required=True, help="vehicle profile name or YAML path (e.g. ardupilot_rover)")

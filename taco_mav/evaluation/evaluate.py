@@ -76,7 +76,8 @@ def resolve_profile(req: EvalRequest) -> Profile:
     return profile_from_dict(profile_to_dict(profile), "command line")  # re-validates the overrides
 
 
-def _load(req: EvalRequest) -> list:
+def load_drives(req: EvalRequest) -> list:
+    """The drives a request names: KITTI odometry sequences under --kitti-root, or --drive folders."""
     if req.sequences and req.drives:
         raise ConfigError("give either --sequences (with --kitti-root) or --drive, not both")
     if req.sequences:
@@ -87,11 +88,11 @@ def _load(req: EvalRequest) -> list:
                 raise DataError(f"unknown sequence {s!r} (known: {', '.join(sorted(ODOMETRY_SEQUENCES))})")
         return [load_sequence(Path(req.kitti_root), s) for s in req.sequences]
     if req.drives:
-        return [_load_drive(Path(d)) for d in req.drives]
+        return [load_drive_dir(Path(d)) for d in req.drives]
     raise ConfigError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
 
 
-def _load_drive(path: Path):
+def load_drive_dir(path: Path):
     """A KITTI-layout drive dir, or a synthetic world (its folder or the drive inside it: the world's exact
     truth and rendered frames are then used)."""
     if not path.is_dir():
@@ -138,7 +139,7 @@ def _write_run(run: DriveRun, folder: Path, plots: bool) -> None:
 def evaluate(req: EvalRequest) -> dict[str, Any]:
     """Run the evaluation described by `req`; returns the results.json object (also written to req.out)."""
     profile = resolve_profile(req)
-    drives = _load(req)
+    drives = load_drives(req)
     out = Path(req.out)
     out.mkdir(parents=True, exist_ok=True)
     runs = _run_all(drives, profile, req)
