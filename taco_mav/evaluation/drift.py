@@ -237,8 +237,12 @@ def report_text(report: DriftReport, profile_plus: Any, profile_name: str) -> st
                          f"measured drift at {h[worst]:g} s; a filter that trusts its IMU too much rejects good "
                          "fixes and can lose lock. Raise the terms below.")
     if report.heading_measurable:
-        lines.append(f"compass offset (mean compass - truth): {math.degrees(report.heading_offset_rad):+.2f} deg; "
-                     "a constant offset is a mounting or declination error: correct it on the vehicle")
+        # the mean of a Gauss-Markov bias over T seconds scatters by about sigma sqrt(2 tau / T)
+        spread = report.compass_bias_sigma_rad * math.sqrt(2.0 * report.compass_bias_tau_s / max(report.duration_s, 1.0))
+        verdict = ("beyond what the fitted bias explains: a mounting or declination error, correct it on the vehicle"
+                   if abs(report.heading_offset_rad) > 3.0 * spread + 1e-3 else "within what the fitted bias explains")
+        lines.append(f"compass offset (mean compass - truth): {math.degrees(report.heading_offset_rad):+.2f} deg, "
+                     f"{verdict}")
     lines.extend(f"note: {n}" for n in report.notes)
     lines.append("")
     lines.append(f"plus:  # fitted on {report.drive} ({profile_name}'s value in the comment; a term the drive "
