@@ -1,5 +1,6 @@
 """Helpers for the simulator tests: a free loopback UDP port and a minimal companion that echoes the
-simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock."""
+simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock. Also `write_tlog`: a drive
+written as the tlog a GNSS-on recording would be."""
 
 from __future__ import annotations
 
@@ -7,12 +8,20 @@ import os
 import socket
 import threading
 import time
+from pathlib import Path
 from typing import Any, Callable
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
+from pymavlink.dialects.v20 import ardupilotmega as apm  # noqa: E402
+
 from taco_mav.geo import gps_week_ms  # noqa: E402
+from taco_mav.link.tlog import TlogWriter  # noqa: E402
+from taco_mav.sim import encode  # noqa: E402
+from taco_mav.sim.source import SimDrive  # noqa: E402
+
+BOOT, UTC = 100.0, 1.7e9  # write_tlog: autopilot seconds at drive time 0, UTC unix seconds at drive time 0
 
 
 def free_udp_port() -> int:
@@ -79,3 +88,20 @@ class EchoCompanion:
                                    s.lat + int(round(self.offset_deg[0] * 1e7)),
                                    s.lng + int(round(self.offset_deg[1] * 1e7)), 100.0, 0.8, 0.8, 0.0, 0.0, 0.0,
                                    0.3, self.h_acc, 1.0, 10, 0)
+
+
+def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float = 0.1, fix: bool = True,
+               radio_delay_s: float = 0.02) -> Path:
+    """RAW_IMU and ATTITUDE at every sample, GPS_RAW_INT every `gps_every` samples (its receive time
+    `gps_latency_s` later than the IMU's); autopilot time BOOT + t, receive time UTC + t + radio_delay_s."""
+    mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
+    log = TlogWriter(path)
+    for i in range(len(d)):
+        T, rx = BOOT + float(d.t[i]), UTC + float(d.t[i]) + radio_delay_s
+        log.write(encode.heartbeat(mav).pack(mav), rx)
+        log.write(encode.raw_imu(mav, d, i, T).pack(mav), rx)
+        log.write(encode.attitude(mav, d, i, T).pack(mav), rx)
+        if i % gps_every == 0:
+            log.write(encode.gps_raw_int(mav, d, i, T, fix=fix).pack(mav), rx + gps_latency_s)
+    log.close()
+    return path

@@ -97,7 +97,7 @@ def test_too_short_is_a_data_error() -> None:
 def test_cli_drift_on_a_tlog(tmp_path: Path) -> None:
     from taco_mav.cli import main
     from taco_mav.reliability.soak import circle_drive
-    from tests.test_tlog import write_tlog
+    from tests.sim_helpers import write_tlog
 
     d = circle_drive(90.0, rate_hz=10.0, radius_m=150.0, speed_mps=8.0)
     rng = np.random.default_rng(3)

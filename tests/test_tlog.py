@@ -8,33 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import ardupilotmega as apm
 
 from taco_mav.datasets.tlog import load_tlog
 from taco_mav.errors import DataError
-from taco_mav.link.tlog import TlogWriter
 from taco_mav.reliability.soak import circle_drive
-from taco_mav.sim import encode
-from taco_mav.sim.source import SimDrive
+from tests.sim_helpers import BOOT, write_tlog
 
-BOOT, UTC = 100.0, 1.7e9
-
-
-def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float = 0.1, fix: bool = True,
-               radio_delay_s: float = 0.02) -> Path:
-    """RAW_IMU and ATTITUDE at every sample, GPS_RAW_INT every `gps_every` samples (its receive time
-    `gps_latency_s` later than the IMU's); autopilot time BOOT + t, receive time UTC + t + radio_delay_s."""
-    mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
-    log = TlogWriter(path)
-    for i in range(len(d)):
-        T, rx = BOOT + float(d.t[i]), UTC + float(d.t[i]) + radio_delay_s
-        log.write(encode.heartbeat(mav).pack(mav), rx)
-        log.write(encode.raw_imu(mav, d, i, T).pack(mav), rx)
-        log.write(encode.attitude(mav, d, i, T).pack(mav), rx)
-        if i % gps_every == 0:
-            log.write(encode.gps_raw_int(mav, d, i, T, fix=fix).pack(mav), rx + gps_latency_s)
-    log.close()
-    return path
 
 
 def test_tlog_drive_matches_what_was_recorded(tmp_path: Path) -> None:

@@ -194,14 +194,13 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
     if not measurable:
         notes.append("the compass heading equals the truth heading (one sensor, as KITTI's OXTS): the heading "
                      "terms cannot be measured on this drive; keep the profile's")
-    moving_t = t[moving]
     return DriftReport(
         drive=str(drive.name), duration_s=float(t[-1] - t[0]), distance_m=float(truth.length_m()),
         horizons_s=[float(x) for x in h], windows=[int(n) for n in rows["n"]], speed_rms_mps=rows["sv"],
         heading_rms_rad=rows["sth"], along_rms_m=rows["al"], cross_rms_m=rows["cr"],
         q_speed_mps=math.sqrt(qv2), q_bias_mps2=math.sqrt(qb2), initial_bias_sigma_mps2=math.sqrt(b02),
         q_theta_rad=math.sqrt(qth2), compass_bias_sigma_rad=math.sqrt(sb2), compass_bias_tau_s=float(tau),
-        heading_offset_rad=float(np.mean(e_th[moving])) if len(moving_t) else 0.0, truth_speed_noise_mps=noise,
+        heading_offset_rad=float(np.mean(e_th[moving])) if moving.any() else 0.0, truth_speed_noise_mps=noise,
         heading_measurable=measurable, notes=notes)
 
 
