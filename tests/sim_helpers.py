@@ -1,6 +1,6 @@
 """Helpers for the simulator tests: a free loopback UDP port and a minimal companion that echoes the
-simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock. Also `write_tlog`: a drive
-written as the tlog a GNSS-on recording would be."""
+simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock;
+`write_tlog`: a drive written as the tlog a GNSS-on recording would be."""
 
 from __future__ import annotations
 
