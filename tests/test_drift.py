@@ -43,7 +43,8 @@ def known_drive(duration_s: float = 1500.0, rate_hz: float = 10.0, q_speed: floa
     xy = np.zeros((n, 2))
     xy[1:, 0], xy[1:, 1] = np.cumsum(step * np.cos(mid)), np.cumsum(step * np.sin(mid))
     a = np.gradient(v, dt) + rng.standard_normal(n) * q_speed / math.sqrt(dt)
-    err = offset + gauss_markov(rng, n, dt, beta, tau_s, dims=1)[:, 0] + np.cumsum(rng.standard_normal(n) * q_theta * math.sqrt(dt))
+    bias = gauss_markov(rng, n, dt, beta, tau_s, dims=1)[:, 0]
+    err = offset + bias + np.cumsum(rng.standard_normal(n) * q_theta * math.sqrt(dt))
     yaw = np.angle(np.exp(1j * (np.pi / 2 - th - err)))  # NED yaw; ENU heading error = +err
     imu = ImuStream(t, np.c_[a, np.zeros(n), np.full(n, -G)], np.zeros((n, 3)), np.c_[np.zeros((n, 2)), yaw])
     return KnownDrive("known", imu, GroundTruth(t, xy, np.angle(np.exp(1j * th))))

@@ -29,7 +29,7 @@ from taco_mav.camera_geometry import GroundCamera  # noqa: E402
 from taco_mav.core.preintegration import enu_heading  # noqa: E402
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix  # noqa: E402
 from taco_mav.errors import DataError  # noqa: E402
-from taco_mav.geo import UtmProjector, utm_epsg_for  # noqa: E402
+from taco_mav.geo import UtmProjector, utm_epsg_for, wrap_angle  # noqa: E402
 from taco_mav.link.decoders import IMU_MESSAGES, Decoders  # noqa: E402
 
 __all__ = ["TlogDrive", "load_tlog"]
@@ -96,7 +96,8 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
         conn.close()
     kind = imu_message or next((k for k in IMU_MESSAGES if imu.get(k)), None)
     if kind is None or len(imu.get(kind, [])) < 20:
-        raise DataError(f"{path}: fewer than 20 IMU samples ({', '.join(IMU_MESSAGES)}); rejected: {dict(dec.rejected)}")
+        raise DataError(f"{path}: fewer than 20 IMU samples ({', '.join(IMU_MESSAGES)}); "
+                        f"rejected: {dict(dec.rejected)}")
     if len(att) < 2:
         raise DataError(f"{path}: no ATTITUDE messages")
     if len(gps) < 20:
@@ -125,7 +126,7 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     compass = np.array([enu_heading(float(y)) for y in np.interp(tg, t, np.unwrap(rpy[:, 2]))]) + conv
     heading = np.array([enu_heading(g[5]) + conv if g[5] is not None and g[4] >= course_min_speed_mps else c
                         for g, c in zip(G, compass)])
-    heading = np.angle(np.exp(1j * heading))
+    heading = wrap_angle(heading)
     first = G[0]
     start = StartFix(float(tg[0]), lat0, lon0, alt0, first[4],
                      enu_heading(first[5]) + conv if first[5] is not None else float(compass[0]))

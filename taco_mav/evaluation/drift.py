@@ -37,6 +37,7 @@ from scipy.signal import savgol_filter
 
 from taco_mav.core.preintegration import enu_heading, level_forward_accel
 from taco_mav.errors import DataError
+from taco_mav.geo import wrap_angle
 
 __all__ = ["DriftReport", "measure_drift", "speed_model_std", "heading_model_std", "HORIZONS_S", "TAU_GRID_S"]
 
@@ -142,7 +143,7 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
     dt = np.diff(t)
     v_int = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]) * dt)])
     e_v = v_int - v_t
-    e_th = np.angle(np.exp(1j * (theta_c - th_t)))
+    e_th = wrap_angle(theta_c - th_t)
     moving = v_t > min_speed_mps
 
     starts = np.arange(t[0], t[-1], stride_s)
@@ -155,11 +156,12 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
             if i1 >= len(t) or not moving[i0:i1 + 1].all() or np.any(dt[i0:i1] > 0.5):
                 continue
             dv.append(e_v[i1] - e_v[i0])
-            dth.append(math.remainder(e_th[i1] - e_th[i0], 2.0 * math.pi))
+            dth.append(wrap_angle(float(e_th[i1] - e_th[i0])))
             # dead reckoning from the truth pose and speed at i0
             v = v_t[i0] + (v_int[i0:i1 + 1] - v_int[i0])
             step = 0.5 * (v[1:] + v[:-1]) * dt[i0:i1]
-            mid = theta_c[i0:i1] + 0.5 * np.angle(np.exp(1j * (theta_c[i0 + 1:i1 + 1] - theta_c[i0:i1])))
+            # mid-step heading, as Preintegrator.add; vectorised over the window
+            mid = theta_c[i0:i1] + 0.5 * wrap_angle(theta_c[i0 + 1:i1 + 1] - theta_c[i0:i1])
             mid = mid - theta_c[i0] + th_t[i0]  # start on the true heading, as after a perfect fix
             ex = x_t[i0] + np.sum(step * np.cos(mid)) - x_t[i1]
             ey = y_t[i0] + np.sum(step * np.sin(mid)) - y_t[i1]
@@ -218,7 +220,8 @@ def report_text(report: DriftReport, profile_plus: Any, profile_name: str) -> st
              f"{'H s':>5} {'windows':>7} | {'speed error m/s: measured':>25} {'profile':>8} {'fit':>7} | "
              f"{'heading error deg: measured':>27} {'profile':>8} {'fit':>7} | {'along m':>7} {'cross m':>7}"]
     for k in range(len(h)):
-        lines.append(f"{h[k]:5.1f} {report.windows[k]:7d} | {report.speed_rms_mps[k]:25.3f} {pv[k]:8.3f} {fv[k]:7.3f} | "
+        lines.append(f"{h[k]:5.1f} {report.windows[k]:7d} | "
+                     f"{report.speed_rms_mps[k]:25.3f} {pv[k]:8.3f} {fv[k]:7.3f} | "
                      f"{math.degrees(report.heading_rms_rad[k]):27.3f} {math.degrees(ph[k]):8.3f} "
                      f"{math.degrees(fh[k]):7.3f} | {report.along_rms_m[k]:7.2f} {report.cross_rms_m[k]:7.2f}")
     lines.append("")
@@ -237,7 +240,8 @@ def report_text(report: DriftReport, profile_plus: Any, profile_name: str) -> st
                          "fixes and can lose lock. Raise the terms below.")
     if report.heading_measurable:
         # the mean of a Gauss-Markov bias over T seconds scatters by about sigma sqrt(2 tau / T)
-        spread = report.compass_bias_sigma_rad * math.sqrt(2.0 * report.compass_bias_tau_s / max(report.duration_s, 1.0))
+        spread = report.compass_bias_sigma_rad * math.sqrt(2.0 * report.compass_bias_tau_s
+                                                           / max(report.duration_s, 1.0))
         verdict = ("beyond what the fitted bias explains: a mounting or declination error, correct it on the vehicle"
                    if abs(report.heading_offset_rad) > 3.0 * spread + 1e-3 else "within what the fitted bias explains")
         lines.append(f"compass offset (mean compass - truth): {math.degrees(report.heading_offset_rad):+.2f} deg, "
