@@ -83,6 +83,7 @@ class FixPipeline:
         self.service: Any = None
         self.worker: MatchWorker | None = None
         self._results: queue.Queue[WorkResult] = queue.Queue()  # shared by replacement workers
+        self._held: deque[WorkResult] = deque()  # answers waiting out matcher_latency_s (autopilot time)
         self._stuck: list[MatchWorker] = []  # abandoned workers (matcher hung)
         self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
         self._truth_lock = threading.Lock()  # appended by the loop thread, searched by the matcher worker
@@ -153,7 +154,7 @@ class FixPipeline:
             self._new_worker()
 
     def _new_worker(self) -> None:
-        self.worker = MatchWorker(self.service, self.opt.matcher_latency_s, self._results)
+        self.worker = MatchWorker(self.service, self._results)
         self.worker.start()
 
     def on_pose(self, t: float, pose: SimPose, origin: encoders.Origin | None) -> None:
@@ -252,6 +253,20 @@ class FixPipeline:
 
         return fetch
 
+    def _due(self, now: float) -> list[WorkResult]:
+        """Finished answers due at autopilot time `now` (s): all of them, or with `matcher_latency_s` those
+        whose capture time is at least that long ago (the rest stay held, in order)."""
+        while True:
+            try:
+                self._held.append(self._results.get_nowait())
+            except queue.Empty:
+                break
+        lag = self.opt.matcher_latency_s
+        due = []
+        while self._held and (lag <= 0 or now >= self._held[0].query.capture_t + lag):
+            due.append(self._held.popleft())
+        return due
+
     def drain(self, loc: Localiser | None, generation: int) -> None:
         """Apply every finished worker result to the Localiser (results of an older generation are dropped),
         log each as a "fix" event and report the gate decision by STATUSTEXT."""
@@ -263,11 +278,7 @@ class FixPipeline:
                 self.events.write("lock", t=t, kind=kind, detail=detail)
                 self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed") else SEV_INFO,
                             f"{kind.replace('_', ' ')} {detail}".strip(), None)
-        while True:
-            try:
-                res = self._results.get_nowait()
-            except queue.Empty:
-                return
+        for res in self._due(loc.t):
             q = res.query
             if res.generation != generation:
                 self.stats.fixes["stale_generation"] += 1

@@ -13,7 +13,8 @@ from taco_mav.config import Estimator
 class DaemonOptions:
     """connect: pymavlink connection string; camera: `--camera` spec; map_path: satellite GeoTIFF (default:
     the world's mosaic for world: cameras); log_dir: tlog + JSONL events + resolved config; origin: (lat, lon,
-    alt) start fix instead of the first GPS_RAW_INT; matcher_latency_s: artificial matcher delay (tests);
+    alt) start fix instead of the first GPS_RAW_INT; matcher_latency_s: hold each answer until the
+    autopilot clock is this far (s) past its capture time (tests; deterministic in lockstep);
     frame_max_gap_s: largest |frame time - capture time| accepted; link_timeout_s: no message from the
     autopilot for this long (companion clock) is a lost link; matcher_timeout_s: a matcher call running longer
     (wall s) is cancelled and its worker replaced."""

@@ -53,14 +53,11 @@ class Job:
 
 
 class MatchWorker:
-    """A daemon thread around a FixService. extra_latency_s: artificial delay before each answer (tests);
-    out: the results queue (shared by a replacement worker; a new one by default). At most one query waits
+    """A daemon thread around a FixService. out: the results queue (shared by a replacement worker; a new one by default). At most one query waits
     while one runs."""
 
-    def __init__(self, service: FixService, extra_latency_s: float = 0.0,
-                 out: queue.Queue[WorkResult] | None = None) -> None:
+    def __init__(self, service: FixService, out: queue.Queue[WorkResult] | None = None) -> None:
         self.service = service
-        self.extra_latency_s = extra_latency_s
         self._in: queue.Queue[tuple[FixQuery, FetchFn, int] | None] = queue.Queue(maxsize=1)
         self.out: queue.Queue[WorkResult] = out if out is not None else queue.Queue()
         self._stop = threading.Event()
@@ -112,8 +109,6 @@ class MatchWorker:
                 error, detail = "matcher_error", f"{type(exc).__name__}: {exc}"
             with self._lock:
                 self._job = None
-            if self.extra_latency_s > 0 and self._stop.wait(self.extra_latency_s):
-                break
             if self._stop.is_set():  # abandoned while the matcher ran: the answer is nobody's now
                 break
             self.out.put(WorkResult(query, results, error, frame_t, time.perf_counter() - t0, generation, detail))
