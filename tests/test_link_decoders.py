@@ -11,7 +11,10 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from taco_mav.link.decoders import G0, Decoders  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from taco_mav.link.decoders import G0, MAX_ATTITUDE_CARRY_S, Decoders, euler_rates  # noqa: E402
 
 
 def wire(build):
@@ -64,6 +67,34 @@ def test_attitude_ned() -> None:
     assert d.attitude(wire(lambda m: m.attitude_encode(1500, float("nan"), 0, 0, 0, 0, 0))) is None
     assert d.attitude(wire(lambda m: m.attitude_encode(1500, 0, 2.0, 0, 0, 0, 0))) is None
     assert dict(d.rejected) == {"ATTITUDE:nonfinite": 1, "ATTITUDE:range": 1}
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_euler_rates_match_body_rate_integration(seed: int) -> None:
+    """ZYX Euler rates from FRD body rates agree with scipy integrating R' = R [w]x over 1 ms."""
+    rng = np.random.default_rng(seed)
+    roll, pitch, yaw = rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-3.0, 3.0)
+    w = rng.uniform(-1.0, 1.0, 3)
+    h = 1e-3
+    r0 = Rotation.from_euler("ZYX", [yaw, pitch, roll])
+    y1, p1, r1 = (r0 * Rotation.from_rotvec(w * h)).as_euler("ZYX")
+    numeric = [(r1 - roll) / h, (p1 - pitch) / h, math.remainder(y1 - yaw, 2 * math.pi) / h]
+    assert euler_rates(roll, pitch, *w) == pytest.approx(numeric, abs=2e-3)
+
+
+def test_attitude_carried_to_imu_time() -> None:
+    """A level vehicle turning at 0.5 rad/s: the 0.1 s old ATTITUDE is carried to the IMU sample's time
+    (0.05 rad more yaw, wrapped through +-pi); beyond MAX_ATTITUDE_CARRY_S it is left as received."""
+    d = Decoders()
+    a = d.attitude(wire(lambda m: m.attitude_encode(10_000, 0.0, 0.0, 3.12, 0.0, 0.0, 0.5)))
+    assert a.euler_rates == pytest.approx((0.0, 0.0, 0.5))
+    b = a.at(10.1)
+    assert b.t == pytest.approx(10.1) and b.yaw == pytest.approx(3.17 - 2 * math.pi)
+    assert a.at(9.95).yaw == pytest.approx(3.095)
+    assert a.at(10.0 + MAX_ATTITUDE_CARRY_S + 0.01) == a
+    bad = d.attitude(wire(lambda m: m.attitude_encode(10_000, 0.0, 0.0, 1.0, 0.0, float("nan"), 0.5)))
+    assert bad is not None and bad.euler_rates == (0.0, 0.0, 0.0) and bad.at(10.1).yaw == pytest.approx(1.0)
+    assert d.rejected == {"ATTITUDE:rates": 1}
 
 
 def test_gps_raw_int_scaling() -> None:

@@ -282,12 +282,12 @@ class Daemon:
         if self.attitude is None:
             self.stats.dropped["imu_before_attitude"] += 1
             return
+        a = self.attitude.at(r.t)
         if self.loc is None:
             if self.origin is None:
                 self.stats.dropped["imu_before_origin"] += 1
                 return
-            self.loc = self.anchor.localiser(r.t, self.attitude.yaw)
-        a = self.attitude
+            self.loc = self.anchor.localiser(r.t, a.yaw)
         assert self.loc is not None
         self.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
         self.stats.imu_samples += 1

@@ -4,7 +4,8 @@ Frames and units (DESIGN.md):
 - RAW_IMU / SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: body FRD, acceleration in mG (a level vehicle at rest reads
   zacc = -1000 mG -> -9.80665 m/s^2), gyro in mrad/s -> rad/s. Time: RAW_IMU time_usec, SCALED_IMU* time_boot_ms.
 - HIGHRES_IMU: body FRD, m/s^2 and rad/s; time_usec.
-- ATTITUDE: roll, pitch, yaw radians, NED (yaw 0 = north, CW); time_boot_ms.
+- ATTITUDE: roll, pitch, yaw radians, NED (yaw 0 = north, CW); rollspeed/pitchspeed/yawspeed FRD body rad/s;
+  time_boot_ms.
 - GPS_RAW_INT: lat/lon degE7, alt mm AMSL, vel cm/s, cog cdeg (65535 = unknown).
 - SIMSTATE (simulators only): lat/lng degE7, yaw radians NED (the true pose).
 All times come out as autopilot seconds.
@@ -20,6 +21,7 @@ from typing import Any
 G0 = 9.80665  # m/s^2 per g, as ArduPilot scales RAW_IMU
 MAX_ACCEL = 16.0 * G0  # m/s^2: beyond a 16 g accelerometer's range
 MAX_GYRO = math.radians(2000.0)  # rad/s: beyond a 2000 deg/s gyro's range
+MAX_ATTITUDE_CARRY_S = 0.2  # s: the furthest an ATTITUDE is carried at its rates to an IMU sample's time
 
 IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 UTM_LAT_MIN, UTM_LAT_MAX = -80.0, 84.0  # degrees: the daemon works on a UTM grid (geo.utm_epsg_for)
@@ -37,12 +39,36 @@ class ImuReading:
 
 @dataclass(frozen=True, slots=True)
 class AttitudeReading:
-    """t: autopilot s; roll, pitch, yaw: NED radians; rates: body rad/s."""
+    """t: autopilot s; roll, pitch, yaw: NED radians (ZYX Euler); euler_rates: d(roll, pitch, yaw)/dt in rad/s,
+    from the message's FRD body rates (zero when they were unusable)."""
 
     t: float
     roll: float
     pitch: float
     yaw: float
+    euler_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def at(self, t: float) -> AttitudeReading:
+        """This attitude carried to autopilot time `t` (s) at its Euler rates, so that an IMU sample is paired
+        with the attitude of its own time rather than the last one received. Unchanged when `t` is more than
+        MAX_ATTITUDE_CARRY_S away (a stalled attitude stream or another clock: not extrapolated)."""
+        dt = t - self.t
+        if abs(dt) > MAX_ATTITUDE_CARRY_S:
+            return self
+        dr, dp, dy = self.euler_rates
+        return AttitudeReading(self.t + dt, self.roll + dr * dt, self.pitch + dp * dt,
+                               math.remainder(self.yaw + dy * dt, 2 * math.pi), self.euler_rates)
+
+
+def euler_rates(roll: float, pitch: float, p: float, q: float, r: float) -> tuple[float, float, float]:
+    """ZYX Euler angle rates (roll, pitch, yaw) in rad/s from FRD body rates p, q, r (rad/s) at roll, pitch (rad);
+    zeros near pitch +-90 deg, where yaw and roll are not defined."""
+    c_p = math.cos(pitch)
+    if abs(c_p) < 0.1:
+        return 0.0, 0.0, 0.0
+    s_r, c_r = math.sin(roll), math.cos(roll)
+    yaw_rate = (q * s_r + r * c_r) / c_p
+    return p + yaw_rate * math.sin(pitch), q * c_r - r * s_r, yaw_rate
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,7 +162,13 @@ class Decoders:
         if abs(r) > math.pi + 1e-3 or abs(p) > math.pi / 2 + 1e-3 or not -math.pi - 1e-3 <= y <= 2 * math.pi + 1e-3:
             self.reject("ATTITUDE", "range")
             return None
-        return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi))
+        body = (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed))
+        rates = (0.0, 0.0, 0.0)
+        if _finite(*body) and max(abs(w) for w in body) <= MAX_GYRO:
+            rates = euler_rates(r, p, *body)
+        else:
+            self.reject("ATTITUDE", "rates")  # the angles are still used, without carrying them in time
+        return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi), rates)
 
     def gnss(self, msg: Any) -> GnssReading | None:
         """GPS_RAW_INT with a 3D fix (fix_type >= 3) inside UTM's latitude band -> GnssReading, or None (counted)."""
