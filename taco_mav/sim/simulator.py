@@ -229,11 +229,11 @@ class Simulator:
                     self._stop.wait(min(w, 0.05))
                 self._send_sample(mav, i, T, due)
         self.play_end = self.clock.now()
+        drain_until = time.monotonic() + opt.drain_s  # lockstep: the clock stays at the drive's end meanwhile,
+        while time.monotonic() < drain_until and not self._stop.is_set():  # so the IMU silence is no "stall"
+            self._stop.wait(0.05)
         if opt.lockstep:
             self.clock.release()
-        drain_until = time.monotonic() + opt.drain_s
-        while time.monotonic() < drain_until and not self._stop.is_set():
-            self._stop.wait(0.05)
         self._done.set()
 
     def _lockstep_wait(self, T: float) -> None:
