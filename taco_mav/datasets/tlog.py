@@ -5,7 +5,7 @@ dead-reckoning drift (`taco-mav drift --tlog`).
 
 - IMU: the first of HIGHRES_IMU, RAW_IMU (id 0), SCALED_IMU present (or `imu_message`), decoded and checked
   by `link.decoders` (body FRD, m/s^2 with gravity, rad/s; autopilot seconds). Each sample takes the ATTITUDE
-  nearest to it in autopilot time (NED radians; ATTITUDE carries whole milliseconds).
+  nearest to it in autopilot time, carried to the sample's time at its rates as the daemon does (NED radians).
 - Truth: GPS_RAW_INT with fix_type >= 3, projected to the UTM zone of the first fix (ENU metres relative to
   it); heading = the GNSS course over ground (grid ENU radians) while faster than `course_min_speed_mps`,
   else the compass's. GNSS stamps are put on the autopilot clock by the tlog's receive times: the median
@@ -30,7 +30,7 @@ from taco_mav.core.preintegration import enu_heading  # noqa: E402
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix  # noqa: E402
 from taco_mav.errors import DataError  # noqa: E402
 from taco_mav.geo import UtmProjector, utm_epsg_for, wrap_angle  # noqa: E402
-from taco_mav.link.decoders import IMU_MESSAGES, Decoders  # noqa: E402
+from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders  # noqa: E402
 
 __all__ = ["TlogDrive", "load_tlog"]
 
@@ -67,7 +67,7 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
         raise DataError(f"--imu-message: {imu_message!r} is not one of {', '.join(IMU_MESSAGES)}")
     dec = Decoders()
     imu: dict[str, list] = {}
-    att: list[tuple[float, float, float, float]] = []
+    att: list[AttitudeReading] = []
     gps: list[tuple[float, float, float, float, float, float | None]] = []
     offsets: list[float] = []
     try:
@@ -87,7 +87,7 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
             elif kind == "ATTITUDE":
                 a = dec.attitude(msg)
                 if a is not None:
-                    att.append((a.t, a.roll, a.pitch, a.yaw))
+                    att.append(a)
             elif kind == "GPS_RAW_INT":
                 g = dec.gnss(msg)
                 if g is not None:
@@ -109,10 +109,11 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     t = t[keep]
     accel = np.array([r.accel_frd for r in samples])[keep]
     gyro = np.array([r.gyro_frd for r in samples])[keep]
-    A = np.array(sorted(att))
-    hi = np.clip(np.searchsorted(A[:, 0], t), 1, len(A) - 1)
-    j = np.where(np.abs(A[hi - 1, 0] - t) <= np.abs(A[hi, 0] - t), hi - 1, hi)  # nearest in autopilot time
-    rpy = A[j, 1:4]
+    att.sort(key=lambda a: a.t)
+    ta = np.array([a.t for a in att])
+    hi = np.clip(np.searchsorted(ta, t), 1, len(ta) - 1)
+    j = np.where(np.abs(ta[hi - 1] - t) <= np.abs(ta[hi] - t), hi - 1, hi)  # nearest in autopilot time
+    rpy = np.array([(c.roll, c.pitch, c.yaw) for c in (att[k].at(ti) for k, ti in zip(j, t))])  # as the daemon
     offset = float(np.median(offsets))
 
     G = sorted(gps)
