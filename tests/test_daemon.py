@@ -54,14 +54,19 @@ def test_clean_stop(drive) -> None:
 
 
 def test_gps_input_rate(drive) -> None:
-    _, ap, _, _ = drive
+    """5 Hz on the wall clock. A loop that ran late skips its missed slots (counted in the summary) instead of
+    bursting; the rate counts those slots, so a stalled test machine is told apart from a slow daemon (at most
+    one second of the drive's slots may be skipped). The steady-state rate and jitter are `taco-mav bench`'s."""
+    daemon, ap, _, _ = drive
     got = ap.of_type("GPS_INPUT")
     times = np.array([r.t for r in got])
     assert len(times) >= 20
     gaps = np.diff(times)
-    rate = (len(times) - 1) / (times[-1] - times[0])
-    assert rate >= 4.9, rate
-    assert gaps.mean() < 0.215
+    skipped = daemon.summary()["output_slots_skipped"]
+    assert skipped <= 5, skipped
+    rate = (len(times) - 1 + skipped) / (times[-1] - times[0])
+    assert rate >= 4.9, (rate, skipped)
+    assert (gaps.sum() - 0.2 * skipped) / len(gaps) < 0.215
     big = gaps > 0.245
     assert not np.any(big[1:] & big[:-1]), gaps
 

@@ -365,11 +365,14 @@ class Daemon:
             self.link.send(encoders.statustext(self.link.mav, severity, text))
 
     def summary(self) -> dict[str, Any]:
-        """Counters for logs and tests."""
+        """Counters for logs and tests; output_slots_skipped: output periods missed because the loop ran late
+        (a stalled machine; each one is a GPS_INPUT the autopilot did not get)."""
         lat = np.array(self.stats.imu_to_estimate_s) * 1e3
         return {"imu_samples": self.stats.imu_samples, "queries": self.stats.queries, "fixes": dict(self.stats.fixes),
                 "dropped": dict(self.stats.dropped), "rejected_inputs": dict(self.decoders.rejected),
-                "outputs": len(self.stats.output_times), "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
+                "outputs": len(self.stats.output_times),
+                "output_slots_skipped": self.t_output.skipped if hasattr(self, "t_output") else 0,
+                "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
                 "link_outages": self.linkwatch.outages, "link_lost": self.linkwatch.lost,
                 "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
                 "stuck_matchers": self.fixes.stuck,
