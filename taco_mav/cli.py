@@ -222,7 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--log-dir", help="folder for mav.tlog, events.jsonl and the resolved config")
     p.add_argument("--origin", help="LAT,LON[,ALT] start fix instead of the first GPS_RAW_INT")
     p.add_argument("--estimator", choices=("paper", "taco+"), help="estimator mode (default: the profile's)")
-    p.add_argument("--matcher-latency", type=float, default=0.0, help="hold each fix until the autopilot clock is S s past its capture (tests)")
+    p.add_argument("--matcher-latency", type=float, default=0.0,
+                   help="hold each fix until the autopilot clock is S s past its capture (tests)")
     p.add_argument("--signing-key", help="MAVLink 2 signing key file (32 bytes raw or 64 hex digits): sign what we "
                    "send, ignore unsigned input")
     p.set_defaults(func=_cmd_run)
