@@ -253,9 +253,11 @@ class FixPipeline:
 
         return fetch
 
-    def _due(self, now: float) -> list[WorkResult]:
+    def _due(self, now: float, generation: int) -> list[WorkResult]:
         """Finished answers due at autopilot time `now` (s): all of them, or with `matcher_latency_s` those
-        whose capture time is at least that long ago (the rest stay held, in order)."""
+        whose capture time is at least that long ago (the rest stay held, in order). Answers of an older
+        `generation` are due at once (dropped by the caller): after a reboot their capture times are on the
+        old clock and would otherwise hold back every later answer."""
         while True:
             try:
                 self._held.append(self._results.get_nowait())
@@ -263,7 +265,8 @@ class FixPipeline:
                 break
         lag = self.opt.matcher_latency_s
         due = []
-        while self._held and (lag <= 0 or now >= self._held[0].query.capture_t + lag):
+        while self._held and (lag <= 0 or self._held[0].generation != generation
+                              or now >= self._held[0].query.capture_t + lag):
             due.append(self._held.popleft())
         return due
 
@@ -278,7 +281,7 @@ class FixPipeline:
                 self.events.write("lock", t=t, kind=kind, detail=detail)
                 self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed") else SEV_INFO,
                             f"{kind.replace('_', ' ')} {detail}".strip(), None)
-        for res in self._due(loc.t):
+        for res in self._due(loc.t, generation):
             q = res.query
             if res.generation != generation:
                 self.stats.fixes["stale_generation"] += 1

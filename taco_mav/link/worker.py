@@ -53,8 +53,8 @@ class Job:
 
 
 class MatchWorker:
-    """A daemon thread around a FixService. out: the results queue (shared by a replacement worker; a new one by default). At most one query waits
-    while one runs."""
+    """A daemon thread around a FixService. out: the results queue (shared by a replacement worker; a new one by
+    default). At most one query waits while one runs."""
 
     def __init__(self, service: FixService, out: queue.Queue[WorkResult] | None = None) -> None:
         self.service = service
