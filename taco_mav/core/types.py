@@ -98,3 +98,31 @@ def horizontal_sigma(cov: np.ndarray) -> float:
     """1-sigma horizontal accuracy, metres: sqrt of the largest eigenvalue of the 2x2 position block of cov
     (m^2)."""
     return float(np.sqrt(max(np.linalg.eigvalsh(np.asarray(cov)[:2, :2]).max(), 0.0)))
+
+
+@dataclass(frozen=True, slots=True)
+class GnssFix:
+    """One real GNSS reading for the Localiser (issue 14). t: autopilot seconds; xy: position, ENU metres from
+    the origin (UTM grid); vel_en: ground velocity (east, north) m/s, or None when the receiver gave none;
+    sigma_h_m: 1-sigma horizontal position accuracy, metres (h_acc, or HDOP x UERE); sigma_v_mps: 1-sigma
+    speed accuracy, m/s (v_acc, or a default)."""
+
+    t: float
+    xy: np.ndarray
+    vel_en: np.ndarray | None
+    sigma_h_m: float
+    sigma_v_mps: float
+
+
+@dataclass(frozen=True, slots=True)
+class GnssOutcome:
+    """What the Localiser did with one GnssFix. used: fused (or taken for re-anchoring in paper mode); reason:
+    "fused", "anchored", "rejected" (the spoofing/jamming guard holds it off), "nonfinite", "stale" or
+    "ignored"; nis: position normalised innovation squared against the prediction; window_nis: the guard's
+    windowed statistic; innovation_m: |position innovation|, metres."""
+
+    used: bool
+    reason: str
+    nis: float = 0.0
+    window_nis: float = 0.0
+    innovation_m: float = 0.0
