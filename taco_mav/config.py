@@ -164,6 +164,24 @@ class PlusConfig:
     zupt_gyro_max_rps: float = field(default=0.02, metadata=_rng(0.0))
     zupt_accel_std_max_mps2: float = field(default=0.05, metadata=_rng(0.0))
     zupt_speed_max_mps: float = field(default=0.5, metadata=_rng(0.0))
+    # ... and not while the mean forward acceleration (less the bias estimate) exceeds this, m/s^2: a smooth
+    # steady acceleration has no spread (SITL's rover pulling away was taken for a stop).
+    zupt_accel_mean_max_mps2: float = field(default=0.15, metadata=_rng(0.0))
+    # ... and not while the autopilot drives (armed, throttle output), a command at most this old, s.
+    drive_command_timeout_s: float = field(default=1.0, metadata=_rng(0.0))
+    # ... and only for a speed the IMU may have lost since the speed was last observed (a fix, a stop): this
+    # 1-sigma forward-acceleration error (m/s^2; a MEMS AHRS's 0.3 deg of pitch is 0.05) plus the bias
+    # state's, integrated over the time since, 3 sigma, plus zupt_speed_max_mps. Also the IMU-only track's.
+    imu_accel_sigma_mps2: float = field(default=0.05, metadata=_rng(0.0))
+    # Closed-loop safety guard (issue 19, core/imu_check.py): the estimate against the IMU-only track since the
+    # last accepted fix; a disagreement beyond guard_k combined sigmas (and guard_floor_m) keeps the reported
+    # variance at least the disagreement squared and holds zero-velocity updates off; guard_gate_misses
+    # consecutive innovation-gate rejections widen the position uncertainty by half the disagreement.
+    guard: bool = True
+    guard_k: float = field(default=3.0, metadata=_rng(0.0, open_lo=True))
+    guard_floor_m: float = field(default=2.0, metadata=_rng(0.0))
+    guard_zupt_holdoff_s: float = field(default=10.0, metadata=_rng(0.0))
+    guard_gate_misses: int = field(default=2, metadata=_rng(1))
     # Covariance trigger: a fix when the filter's 1-sigma reaches this (or after trigger_time_s moving).
     trigger_sigma_m: float = field(default=3.0, metadata=_rng(0.0, open_lo=True))
     trigger_time_s: float = field(default=10.0, metadata=_rng(0.0, open_lo=True))

@@ -9,6 +9,7 @@ corrected speed; the amount is kept on the frame so a replay after a late fix su
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Sequence
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.gate import yaw_residual
+from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
@@ -48,7 +50,18 @@ class PlusLocaliser(Localiser):
                q.compass_bias_sigma_rad**2][:n_states(q)]
         self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0, 0.0][:len(var)]), np.diag(var), params.ukf_alpha,
                              params.ukf_beta, params.ukf_kappa)
-        self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2)
+        self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2,
+                                        q.zupt_accel_mean_max_mps2)
+        self.unaided = UnaidedTrack(q.guard_k, q.guard_floor_m, q.imu_accel_sigma_mps2)
+        self._guard_added = 0.0  # position variance the guard added since the last accepted fix, m^2
+        self._guard_flagged = False
+        self._zupt_holdoff_until = -math.inf
+        self._gate_misses = 0  # consecutive innovation-gate rejections
+        self._misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
+        self._report_floor_m = 0.0  # 1-sigma floor on the reported (not the filter's) position accuracy, m
+        self._zupt_since_reset = False  # a zero-velocity update since the IMU-only track was reset
+        self._speed_seen_t, self._speed_seen_sigma = t0, q.initial_speed_sigma_mps  # last speed observation
+        self._drive: tuple[float, bool] | None = None  # (t, the autopilot drives) from set_drive_command
         self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
         self._last_answer_t = -math.inf
         self._zupt = False  # the last frame had a zero-velocity update
@@ -57,17 +70,45 @@ class PlusLocaliser(Localiser):
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
-        if sample.t > self.pre.t:
-            self.still.add(sample.t, sample.accel_frd, sample.gyro_frd)
+        fresh = sample.t > self.pre.t
+        if fresh and self.q.guard and not self.unaided.started:
+            self._reset_unaided()
         super().add_imu(sample)
+        if fresh:
+            self.still.add(sample.t, sample.accel_frd, sample.gyro_frd, self.pre.accel_fwd)
+            if self.q.guard:
+                self.unaided.add(sample.t, self.pre.accel_fwd, self.pre.theta, self.p.allow_reverse)
+
+    def set_drive_command(self, t: float, driving: bool) -> None:
+        """What the autopilot commands at time t (s): True while it drives (armed with a throttle output), False
+        while it does not. A driving autopilot vetoes zero-velocity updates (for drive_command_timeout_s)."""
+        self._drive = (t, driving)
+
+    def _driving(self) -> bool:
+        d = self._drive
+        return d is not None and d[1] and self.t - d[0] <= self.q.drive_command_timeout_s
 
     def _open_tick(self, tick: _Tick) -> None:
-        # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot
-        # tell from zero (zupt_speed_max_mps plus 3 sigma of the speed error).
+        # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot tell from
+        # zero. The speed the IMU may have lost since the speed was last observed (a fix, a stop) is what its
+        # accelerometer error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a
+        # smooth 3 m/s cruise fell inside 3 sigma within seconds and the ZUPT pinned it to zero). Never while
+        # the autopilot drives, nor while the safety guard holds zero-velocity updates off.
         q = self.q
-        gate = q.zupt_speed_max_mps + 3.0 * math.sqrt(max(float(self.ukf.P[3, 3]), 0.0))
-        tick.stationary = bool(q.zupt and self.still.stationary and abs(self.pre.speed) <= gate)
+        tau = max(self.t - self._speed_seen_t, 0.0)
+        drift = (math.sqrt(max(float(self.ukf.P[4, 4]), 0.0)) + q.imu_accel_sigma_mps2) * tau
+        gate = q.zupt_speed_max_mps + 3.0 * (self._speed_seen_sigma + drift)
+        bias = float(self.ukf.x[4])
+        tick.stationary = bool(q.zupt and abs(self.pre.speed) <= gate and self.t >= self._zupt_holdoff_until
+                               and not self._driving() and self.still.still(bias))
+        if tick.stationary:
+            self._speed_seen(q.zupt_sigma_mps)
+            self._zupt_since_reset = True
         self._zupt = tick.stationary
+
+    def _speed_seen(self, sigma_mps: float) -> None:
+        """The speed was just observed (a stop, a fix) with this 1-sigma, m/s."""
+        self._speed_seen_t, self._speed_seen_sigma = self.t, sigma_mps
 
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         inc = tick.inc
@@ -91,6 +132,64 @@ class PlusLocaliser(Localiser):
 
     def _close_tick(self, tick: _Tick) -> None:
         self._feedback(tick)
+        if self.q.guard:
+            self._guard()
+
+    # ------------------------------------------------------------------ closed-loop safety guard
+    def _reset_unaided(self) -> None:
+        """Restart the IMU-only track at the current estimate (start-up, accepted fix)."""
+        est, P = super().estimate(), self.ukf.P
+        self.unaided.reset(self.t, (float(est.xy[0]), float(est.xy[1])), float(self.pre.speed), float(self.ukf.x[4]),
+                           horizontal_sigma(P), math.sqrt(max(float(P[3, 3]), 0.0)),
+                           math.sqrt(max(float(P[4, 4]), 0.0)))
+        self._guard_added = 0.0
+        self._zupt_since_reset = False
+        if self._guard_flagged:
+            self._guard_flagged = False
+            self.lock.note(self.t, "imu_agrees", "a fix settled the disagreement")
+
+    def _distrust_zupt(self) -> None:
+        """Evidence that the estimate lost the motion (the IMU-only track or the fixes disagree): hold
+        zero-velocity updates off, and when one happened since the last accepted fix while the IMU alone still
+        has the vehicle moving, give the IMU's speed back (a smooth cruise was taken for a stop) with a speed
+        variance that lets the next fixes correct it."""
+        self._zupt_holdoff_until = self.t + self.q.guard_zupt_holdoff_s
+        gap = self.unaided.v - float(self.pre.speed)
+        if self._zupt_since_reset and gap > 3.0 * self.unaided.sigma_v0 + self.q.zupt_speed_max_mps:
+            self.pre.speed = self.unaided.v
+            self._zupt_since_reset = False
+            x, P = self.ukf.get_state()
+            P[3, 3] = max(float(P[3, 3]), gap * gap)
+            self.ukf.set_state(x, P)
+            if self._history:
+                self._history[-1].P = P.copy()
+            self.lock.note(self.t, "speed_restored", f"a stop was wrong: speed {gap:+.1f} m/s from the IMU")
+
+    def _guard(self) -> None:
+        """Each frame: the estimate against the IMU-only track (module imu_check). On disagreement keep the
+        horizontal variance at least the disagreement squared, the speed variance at least the speed gap
+        squared, and hold zero-velocity updates off."""
+        est, P = super().estimate(), self.ukf.P
+        s0 = self.unaided.sigma_xy0
+        own = math.sqrt(max(horizontal_sigma(P) ** 2 - self._guard_added - s0 * s0, 0.0))
+        bad = self.unaided.check((float(est.xy[0]), float(est.xy[1])), float(est.speed), own)
+        if bad is None:
+            return
+        self._distrust_zupt()
+        x, P = self.ukf.get_state()
+        lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
+        add = max(bad.distance_m**2 - lo, 0.0)
+        P[:2, :2] += add * np.eye(2)
+        P[3, 3] = max(float(P[3, 3]), bad.speed_gap_mps**2)
+        self.ukf.set_state(x, P)
+        self._guard_added += add
+        if self._history:
+            self._history[-1].P = P.copy()
+        if not self._guard_flagged:
+            self._guard_flagged = True
+            self.lock.note(self.t, "imu_disagrees", f"estimate {bad.distance_m:.1f} m from the IMU-only track "
+                           f"after {bad.tau_s:.0f} s (1-sigma {bad.sigma_m:.1f} m, speed gap "
+                           f"{bad.speed_gap_mps:+.1f} m/s): accuracy widened")
 
     def _feedback(self, tick: _Tick) -> None:
         """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""
@@ -123,7 +222,11 @@ class PlusLocaliser(Localiser):
             return "confirm", 0.0, arm
         if sig >= q.trigger_sigma_m:
             return "covariance", 0.0, arm
-        if self.t - self._last_fix_t >= q.trigger_time_s and not self.still.stationary:
+        # also at an apparent stop (one the IMU cannot tell from a smooth cruise must not silence the camera,
+        # issue 19), unless the autopilot confirms it does not drive
+        d = self._drive
+        stopped = d is not None and not d[1] and self.t - d[0] <= q.drive_command_timeout_s
+        if self.t - self._last_fix_t >= q.trigger_time_s and not (stopped and (self._zupt or self.still.stationary)):
             return "time", 0.0, arm
         return None
 
@@ -190,17 +293,34 @@ class PlusLocaliser(Localiser):
         self._settle_lock(state, jump, s_f, s_l)
         if self._history:
             self._feedback(self._history[-1])
+        self._gate_misses = self._misses_in_row = 0
+        self._report_floor_m = 0.0
+        self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+        if self.q.guard:
+            self._reset_unaided()
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
 
     def _failed(self, reason: str, innovation_m: float) -> None:
         """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared
         lost (half the disagreement, at least lost_sigma_min_m) and by half a grid spacing per failed
-        recovery attempt."""
+        recovery attempt. With the safety guard, `guard_gate_misses` failures in a row (off-map answers
+        aside) also make a zero-velocity update since the last fix suspect (`_distrust_zupt`), and innovation-gate
+        rejections in a row keep the *reported* accuracy at half their disagreement until a fix is accepted,
+        while the gate keeps the filter's own P (a silent outlier stays out)."""
         was_lost = self.lock.state is LockState.LOST
+        if reason != "no_results":
+            self._misses_in_row += 1
+        self._gate_misses = self._gate_misses + 1 if reason == "innovation_gate" else 0
         if self.lock.on_failure(self.t, reason):
             self._inflate(0.5 * innovation_m)
         elif was_lost:
             self._widen(0.5 * self.q.grid_spacing_m)
+        elif self.q.guard and self._gate_misses >= self.q.guard_gate_misses:
+            self._report_floor_m = max(self._report_floor_m, 0.5 * innovation_m)
+            self.lock.note(self.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
+                           "away: accuracy widened")
+        if self.q.guard and self._misses_in_row >= self.q.guard_gate_misses:
+            self._distrust_zupt()
 
     def _settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:
         """Lock bookkeeping after an applied fix. A relocalisation (from LOST) keeps half its jump as a
@@ -230,6 +350,9 @@ class PlusLocaliser(Localiser):
     def estimate(self) -> Estimate:
         est = super().estimate()
         x = self.ukf.x
+        lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
+        if lo < self._report_floor_m**2:
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + (self._report_floor_m**2 - lo) * np.eye(2))
         est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
                          compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
                          stationary=self._zupt)

@@ -44,6 +44,10 @@ class LockMonitor:
     events: list[tuple[float, str, str]] = field(default_factory=list)
     unreported: list[tuple[float, str, str]] = field(default_factory=list)
 
+    def note(self, t: float, kind: str, detail: str) -> None:
+        """Record an event of the Localiser's own (the safety guard's) beside the lock events."""
+        self._event(t, kind, detail)
+
     def _event(self, t: float, kind: str, detail: str) -> None:
         for store in (self.events, self.unreported):
             store.append((t, kind, detail))

@@ -49,6 +49,15 @@ class PlusParams:
     zupt_gyro_max_rps: float = 0.02
     zupt_accel_std_max_mps2: float = 0.05
     zupt_speed_max_mps: float = 0.5
+    zupt_accel_mean_max_mps2: float = 0.15
+    drive_command_timeout_s: float = 1.0
+    imu_accel_sigma_mps2: float = 0.05
+    # closed-loop safety guard (core/imu_check.py)
+    guard: bool = True
+    guard_k: float = 3.0
+    guard_floor_m: float = 2.0
+    guard_zupt_holdoff_s: float = 10.0
+    guard_gate_misses: int = 2
     # trigger and search
     trigger_sigma_m: float = 3.0
     trigger_time_s: float = 10.0

@@ -1,9 +1,14 @@
-"""Stationary detection for zero-velocity updates (taco+, issue 7).
+"""Stationary detection for zero-velocity updates (taco+, issues 7 and 19).
 
-The vehicle is taken as stationary when, over the last `window_s` seconds of IMU samples, the largest gyro
-rate stays below `gyro_max` (rad/s) and the specific force varies by less than `accel_std_max` (m/s^2: the
-root of the summed per-axis variances, so horizontal vibration counts as much as vertical): an engine idling
-on a stopped rover shakes the accelerometer less than driving does.
+The IMU alone cannot tell a stop from a smooth cruise: at constant velocity a rover on smooth asphalt (and
+SITL's rover, whose IMU has no vibration) measures exactly what a parked one does. The detector therefore only
+says "IMU still"; the Localiser combines it with what else it knows (its own speed, the autopilot's drive
+command). The IMU is still when, over the last `window_s` seconds of samples:
+- the largest gyro rate stays below `gyro_max` (rad/s),
+- the specific force varies by less than `accel_std_max` (m/s^2: the root of the summed per-axis variances,
+  so horizontal vibration counts as much as vertical; an idling engine shakes it less than driving does),
+- and the mean gravity-compensated forward acceleration, less the caller's accelerometer-bias estimate, is
+  within `accel_mean_max` (m/s^2): a smooth, steady acceleration has no spread at all, but it is not a stop.
 """
 
 from __future__ import annotations
@@ -13,30 +18,41 @@ from collections import deque
 
 
 class StationaryDetector:
-    """Feed every IMU sample; `stationary` answers for the window that ends at the last sample."""
+    """Feed every IMU sample; `still(bias)` answers for the window that ends at the last sample."""
 
-    def __init__(self, window_s: float, gyro_max: float, accel_std_max: float) -> None:
+    def __init__(self, window_s: float, gyro_max: float, accel_std_max: float, accel_mean_max: float = math.inf) -> None:
         self.window_s = window_s
         self.gyro_max = gyro_max
         self.accel_std_max = accel_std_max
-        self._samples: deque[tuple[float, tuple[float, float, float], float]] = deque(maxlen=4096)  # t, f, |omega|
+        self.accel_mean_max = accel_mean_max
+        # t, specific force FRD, |omega|, level forward acceleration
+        self._samples: deque[tuple[float, tuple[float, float, float], float, float]] = deque(maxlen=4096)
 
-    def add(self, t: float, accel: tuple[float, float, float], gyro: tuple[float, float, float]) -> None:
-        """t: seconds; accel: specific force, m/s^2; gyro: rad/s (any body frame)."""
-        self._samples.append((t, tuple(accel), math.sqrt(sum(g * g for g in gyro))))
+    def add(self, t: float, accel: tuple[float, float, float], gyro: tuple[float, float, float],
+            accel_fwd: float = 0.0) -> None:
+        """t: seconds; accel: specific force, m/s^2; gyro: rad/s (any body frame); accel_fwd: gravity-compensated
+        forward acceleration in the level frame, m/s^2."""
+        self._samples.append((t, tuple(accel), math.sqrt(sum(g * g for g in gyro)), accel_fwd))
         while self._samples and self._samples[0][0] < t - self.window_s:
             self._samples.popleft()
 
     @property
     def stationary(self) -> bool:
+        """Still with a zero accelerometer-bias estimate (see `still`)."""
+        return self.still(0.0)
+
+    def still(self, accel_bias: float = 0.0) -> bool:
+        """accel_bias: the forward accelerometer bias estimate, m/s^2 (what a still IMU reads forward)."""
         s = self._samples
         if len(s) < 3 or s[-1][0] - s[0][0] < 0.8 * self.window_s:
             return False
-        if max(g for _, _, g in s) > self.gyro_max:
+        if max(g for _, _, g, _ in s) > self.gyro_max:
             return False
         n = len(s)
+        if abs(sum(a for _, _, _, a in s) / n - accel_bias) > self.accel_mean_max:
+            return False
         var = 0.0
         for axis in range(3):
-            mean = sum(f[axis] for _, f, _ in s) / n
-            var += sum((f[axis] - mean) ** 2 for _, f, _ in s) / (n - 1)
+            mean = sum(f[axis] for _, f, _, _ in s) / n
+            var += sum((f[axis] - mean) ** 2 for _, f, _, _ in s) / (n - 1)
         return math.sqrt(var) <= self.accel_std_max

@@ -279,7 +279,8 @@ class FixPipeline:
         if isinstance(loc, PlusLocaliser):
             for t, kind, detail in loc.take_lock_events():
                 self.events.write("lock", t=t, kind=kind, detail=detail)
-                self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed") else SEV_INFO,
+                self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed", "imu_disagrees", "fixes_disagree")
+                            else SEV_INFO,
                             f"{kind.replace('_', ' ')} {detail}".strip(), None)
         for res in self._due(loc.t, generation):
             q = res.query
