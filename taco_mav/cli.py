@@ -115,9 +115,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_sim(args: argparse.Namespace) -> int:
     from taco_mav.sim import simulate
 
+    home = None
+    if args.home:
+        try:
+            lat, lon, alt = (float(v) for v in args.home.split(","))
+        except ValueError:
+            raise TacoError(f"--home: expected LAT,LON,ALT, got {args.home!r}") from None
+        home = (lat, lon, alt)
+    if args.spoof_drift is not None and args.spoof_after is None:
+        raise TacoError("--spoof-drift needs --spoof-after")
     doc = simulate(Path(args.drive), args.connect, Path(args.out), args.speed, deny_after_s=args.deny_after,
                    lockstep=args.lockstep, duration_s=args.duration, gps1_type=args.gps1_type,
-                   wait_companion_s=args.wait)
+                   gps2_type=args.gps2_type, gnss_noise_m=args.gnss_noise, seed=args.seed,
+                   spoof_after_s=args.spoof_after, spoof_drift_mps=args.spoof_drift or 0.0,
+                   spoof_jump_m=args.spoof_jump, home=home, send_home=not args.no_home, wait_companion_s=args.wait)
     for name, seq in doc["sequences"].items():
         print(_sim_table(name, seq))
     print(f"wrote {Path(args.out) / 'results.json'}")
@@ -136,6 +147,10 @@ def _sim_table(name: str, seq: dict) -> str:
         ("ATE (UTM, unaligned)", f"{_fmt(seq.get('ate_unaligned_m'), '.2f')} m"),
         ("length", f"{_fmt(seq.get('length_km'), '.3f')} km"),
         ("ATE per km", f"{_fmt(seq.get('ate_m_per_km'), '.2f')} m/km"),
+        *([("ATE denied/spoofed / max", f"{_fmt(seq.get('ate_denied_m'), '.2f')} / "
+                                        f"{_fmt(seq.get('max_error_denied_m'), '.2f')} m "
+                                        f"(from {_fmt(seq.get('denied_from_s'), '.0f')} s)")]
+          if "ate_denied_m" in seq else []),
         ("GPS_INPUT received", f"{seq.get('gps_input_count', 0)} (fix types {seq.get('fix_type_counts', {})})"),
         ("GPS_INPUT rate", f"{_fmt(seq.get('gps_input_rate_hz'), '.2f')} Hz"),
         ("interval p50 / p99 / max", f"{_fmt(seq.get('gps_input_interval_p50_ms'), '.0f')} / "
@@ -220,7 +235,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", help="world:DIR | folder:DIR[@OFFSET_S] | device index | video file | RTSP/GStreamer")
     p.add_argument("--map", help="satellite GeoTIFF (UTM); default: the world's mosaic with --camera world:DIR")
     p.add_argument("--log-dir", help="folder for mav.tlog, events.jsonl and the resolved config")
-    p.add_argument("--origin", help="LAT,LON[,ALT] start fix instead of the first GPS_RAW_INT")
+    p.add_argument("--origin", help="LAT,LON[,ALT] start fix (default: the EKF origin, home, or a real GNSS's "
+                   "3D fix, as the autopilot offers)")
     p.add_argument("--estimator", choices=("paper", "taco+"), help="estimator mode (default: the profile's)")
     p.add_argument("--matcher-latency", type=float, default=0.0,
                    help="hold each fix until the autopilot clock is S s past its capture (tests)")
@@ -233,10 +249,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect", required=True, help="pymavlink connection to the companion, e.g. udpout:127.0.0.1:14550")
     p.add_argument("--out", required=True, help="folder for results.json")
     p.add_argument("--speed", type=float, default=1.0, help="real-time factor (default 1)")
-    p.add_argument("--deny-after", type=float, help="seconds of real GNSS before NO_FIX (default: the start-up fix, 1 s)")
+    p.add_argument("--deny-after", type=float, help="seconds of real GNSS before NO_FIX; 0: never a fix (default: "
+                   "the start-up fix, 1 s; never denied with --spoof-after)")
     p.add_argument("--lockstep", action="store_true", help="never run more than 0.2 s (one 5 Hz period) ahead of the companion's GPS_INPUT")
     p.add_argument("--duration", type=float, help="play at most this many seconds of the drive")
-    p.add_argument("--gps1-type", type=int, default=14, help="GPS1_TYPE reported to the companion (default 14)")
+    p.add_argument("--gps1-type", type=int, default=14, help="GPS1_TYPE (default 14: GPS1 = the companion's "
+                   "GPS_INPUT, the real receiver is GPS2; 1: the receiver is GPS1, the companion GPS2)")
+    p.add_argument("--gps2-type", type=int, help="GPS2_TYPE (default: 1 when GPS1_TYPE is 14, else 14; 0: no GPS2)")
+    p.add_argument("--gnss-noise", type=float, default=1.0, metavar="SIGMA_M",
+                   help="real receiver 1-sigma, m: white noise plus a wandering bias (default 1.0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the receiver's noise (default 0)")
+    p.add_argument("--spoof-after", type=float, metavar="S", help="from S s the receiver is spoofed (keeps a "
+                   "confident 3D fix while dragged away)")
+    p.add_argument("--spoof-drift", type=float, metavar="MPS", help="spoofing drag speed, m/s (default 0)")
+    p.add_argument("--spoof-jump", type=float, default=0.0, metavar="M", help="spoofing jump at its start, m")
+    p.add_argument("--home", metavar="LAT,LON,ALT", help="home / EKF origin sent as HOME_POSITION and "
+                   "GPS_GLOBAL_ORIGIN (default: the drive's start)")
+    p.add_argument("--no-home", action="store_true", help="send neither HOME_POSITION nor GPS_GLOBAL_ORIGIN")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the companion's HEARTBEAT")
     p.set_defaults(func=_cmd_sim)
 

@@ -1,9 +1,10 @@
 """A minimal MAVLink autopilot for link tests: a real pymavlink endpoint on 127.0.0.1 that drives a straight,
 constant-speed, level rover and records what the daemon sends back.
 
-Sends HEARTBEAT 1 Hz, GPS_RAW_INT (3D fix) for the first second, RAW_IMU at `imu_hz` (level at rest: zacc
--1000 mG), ATTITUDE at `att_hz`, SYSTEM_TIME 1 Hz, SIMSTATE (the true pose) at 10 Hz; answers
-PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`), COMMAND_LONG (ACK accepted) and TIMESYNC.
+Sends HEARTBEAT 1 Hz, GPS2_RAW (3D fix: a real receiver as GPS2, since GPS1 is the daemon's GPS_INPUT) for the
+first second, RAW_IMU at `imu_hz` (level at rest: zacc -1000 mG), ATTITUDE at `att_hz`, SYSTEM_TIME 1 Hz,
+SIMSTATE (the true pose) at 10 Hz; answers PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`), COMMAND_LONG (ACK
+accepted) and TIMESYNC.
 Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; autopilot time = boot_s + elapsed.
 
 Faults: `stall` silences IMU/ATTITUDE; `outage` closes the connection for a while (nothing sent or read; the
@@ -60,7 +61,7 @@ class MiniAutopilot:
     outage: tuple[float, float] | None = None  # (from, to) elapsed s: connection closed, nothing sent or read
     transport: str = "udp"  # "udp": udpout to the daemon's udpin; "tcp": a server on `port` (daemon: tcp:)
     udp_local_port: int | None = None  # UDP source port (None: ephemeral, a new one after an outage)
-    gps_s: float = 1.0  # GPS_RAW_INT (3D fix, 4 Hz) for this long after start
+    gps_s: float = 1.0  # GPS2_RAW (3D fix, 4 Hz) for this long after start (GPS1 is the daemon's GPS_INPUT)
     received: list[Received] = field(default_factory=list)
     params_asked: list[str] = field(default_factory=list)
     commands: list[int] = field(default_factory=list)
@@ -143,8 +144,8 @@ class MiniAutopilot:
                 mav.system_time_send(int(time.time() * 1e6), int(t_ap * 1e3))
                 if el < self.gps_s:
                     lat, lon = self.truth_latlon(el)
-                    mav.gps_raw_int_send(int(t_ap * 1e6), 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3),
-                                         80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12)
+                    mav.gps2_raw_send(int(t_ap * 1e6), 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3),
+                                      80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12, 0, 0)
                 next_st += 0.25 if el < self.gps_s else 1.0
             while k_att / self.att_hz <= el:
                 if not stalled:

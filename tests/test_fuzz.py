@@ -71,7 +71,7 @@ def test_stream_is_valid_mavlink() -> None:
             kinds.append(msg.get_type())
             assert (msg.get_srcSystem(), msg.get_srcComponent()) == (1, 1)
     assert kinds.count("HIGHRES_IMU") == 101 and kinds.count("ATTITUDE") == 51 and kinds.count("HEARTBEAT") == 2
-    assert kinds.count("GPS_RAW_INT") == 5 and kinds.count("SIMSTATE") == 11
+    assert kinds.count("GPS2_RAW") == 5 and kinds.count("SIMSTATE") == 11
     assert s.t == pytest.approx(50.0 + 101 * STEP_S)
     lat, lon = s.latlon(50.0 + 10.0)  # 50 m at 30 deg true
     assert (lat - 49.0) * 111_320.0 == pytest.approx(50.0 * 0.8660254, rel=1e-6)

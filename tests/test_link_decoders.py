@@ -126,3 +126,78 @@ def test_positions_outside_utm_band_rejected() -> None:
     assert dict(d.rejected) == {"GPS_RAW_INT:outside_utm": 2, "SIMSTATE:range": 1}
     d.reject("RAW_IMU", "foreign_source")
     assert d.rejected["RAW_IMU:foreign_source"] == 1
+
+
+def test_gps2_raw_and_accuracies() -> None:
+    """GPS2_RAW is instance 2; h_acc mm -> m, vel_acc mm/s -> m/s, eph = HDOP x 100; 0 / 65535 = not reported."""
+    d = Decoders()
+    g = d.gnss(wire(lambda m: m.gps2_raw_encode(3_000_000, 4, 490_000_000, 84_000_000, 110_000, 90, 140, 250, 18000,
+                                                14, 0, 0, 0, 110_000, 1_250, 2_000, 300, 0)))
+    assert g.instance == 2 and g.fix_type == 4 and g.h_acc_m == pytest.approx(1.25) and g.hdop == pytest.approx(0.9)
+    assert g.vel_acc_mps == pytest.approx(0.3) and g.course_ned == pytest.approx(math.pi) and g.speed_known
+    g1 = d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 490_000_000, 84_000_000, 0, 65535, 0, 65535, 65535, 9)))
+    assert g1.instance == 1 and g1.h_acc_m is None and g1.hdop is None and g1.vel_acc_mps is None
+    assert not g1.speed_known and g1.speed == 0.0
+
+
+@pytest.mark.parametrize("kind", ["gps_raw_int", "gps2_raw"])
+def test_gnss_absurd_values_rejected(kind: str) -> None:
+    """Values no ground receiver reports refuse the reading, counted by reason."""
+    d = Decoders()
+    name = kind.upper()
+
+    def msg(fix=3, lat=490_000_000, lon=84_000_000, alt=115_000, eph=80, vel=500, cog=9000, h_acc=800):
+        if kind == "gps_raw_int":
+            return wire(lambda m: m.gps_raw_int_encode(1, fix, lat, lon, alt, eph, 0, vel, cog, 9, 0, h_acc, 0, 0, 0))
+        return wire(lambda m: m.gps2_raw_encode(1, fix, lat, lon, alt, eph, 0, vel, cog, 9, 0, 0, 0, 0, h_acc, 0, 0, 0))
+
+    for kwargs in (dict(fix=200), dict(alt=2**31 - 1), dict(vel=65534), dict(cog=40000), dict(h_acc=2**32 - 1),
+                   dict(lat=2**31 - 1), dict(fix=0)):
+        assert d.gnss(msg(**kwargs)) is None
+    assert dict(d.rejected) == {f"{name}:fix_type_range": 1, f"{name}:alt_range": 1, f"{name}:speed_range": 1,
+                                f"{name}:course_range": 1, f"{name}:accuracy_range": 1, f"{name}:position_range": 1,
+                                f"{name}:no_3d_fix": 1}
+    assert d.gnss(msg()) is not None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_gnss_fuzz_only_counters(seed: int) -> None:
+    """Random field values (every int at its type's extremes or anywhere): each message is either refused and
+    counted, or a reading inside the documented ranges."""
+    import random
+
+    rnd = random.Random(seed)
+    d = Decoders()
+    accepted = 0
+    for k in range(2000):
+        f = dict(fix=rnd.choice([0, 1, 2, 3, 4, 6, 8, 9, 255]), lat=rnd.randint(-2**31, 2**31 - 1),
+                 lon=rnd.randint(-2**31, 2**31 - 1), alt=rnd.randint(-2**31, 2**31 - 1), eph=rnd.randint(0, 65535),
+                 vel=rnd.randint(0, 65535), cog=rnd.randint(0, 65535), h=rnd.choice([0, rnd.randint(0, 2**32 - 1)]))
+        if k % 2:
+            m = wire(lambda m: m.gps_raw_int_encode(rnd.randint(0, 2**64 - 1), f["fix"], f["lat"], f["lon"], f["alt"],
+                                                    f["eph"], 0, f["vel"], f["cog"], 9, 0, f["h"], 0, 0, 0))
+        else:
+            m = wire(lambda m: m.gps2_raw_encode(rnd.randint(0, 2**64 - 1), f["fix"], f["lat"], f["lon"], f["alt"],
+                                                 f["eph"], 0, f["vel"], f["cog"], 9, 0, 0, 0, 0, f["h"], 0, 0, 0))
+        g = d.gnss(m)
+        if g is not None:
+            accepted += 1
+            assert 3 <= g.fix_type <= 8 and -80 <= g.lat <= 84 and abs(g.alt) <= 20_000 and 0 <= g.speed <= 150
+            assert g.h_acc_m is None or 0 < g.h_acc_m <= 1000
+    assert sum(d.rejected.values()) + accepted == 2000 and accepted < 20
+
+
+def test_origin_messages() -> None:
+    d = Decoders()
+    o = d.origin(wire(lambda m: m.gps_global_origin_encode(-353_632_610, 1_491_652_300, 584_070, 0)))
+    assert (o.lat, o.lon, o.alt, o.source) == (pytest.approx(-35.363261), pytest.approx(149.16523),
+                                               pytest.approx(584.07), "GPS_GLOBAL_ORIGIN")
+    h = d.origin(wire(lambda m: m.home_position_encode(490_000_000, 84_000_000, 115_000, float("nan"), 0, 0,
+                                                       [float("nan")] * 4, 0, 0, 0)))
+    assert h.source == "HOME_POSITION" and h.alt == pytest.approx(115.0)  # NaN local fields are not used
+    assert d.origin(wire(lambda m: m.home_position_encode(0, 0, 0, 0, 0, 0, [1, 0, 0, 0], 0, 0, 0))) is None
+    assert d.origin(wire(lambda m: m.gps_global_origin_encode(900_000_001, 0, 0))) is None
+    assert d.origin(wire(lambda m: m.gps_global_origin_encode(850_000_000, 10, 0))) is None
+    assert d.origin(wire(lambda m: m.gps_global_origin_encode(490_000_000, 84_000_000, -2**31))) is None
+    assert dict(d.rejected) == {"HOME_POSITION:unset": 1, "GPS_GLOBAL_ORIGIN:position_range": 2,
+                                "GPS_GLOBAL_ORIGIN:outside_utm": 1}

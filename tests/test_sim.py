@@ -166,12 +166,17 @@ def _check_services_and_streams(sim: Simulator, comp: EchoCompanion) -> None:
     got = comp.received
     assert [m.param_value for m in got["PARAM_VALUE"]] == [14.0]
     assert got["TIMESYNC"][0].ts1 == 123456789 and got["TIMESYNC"][0].tc1 > 5e9
-    gps = got["GPS_RAW_INT"]
-    t0 = gps[0].time_usec
-    assert {m.fix_type for m in gps if m.time_usec - t0 < 1_000_000} == {3}  # real GNSS for the first second
-    assert {m.fix_type for m in gps if m.time_usec - t0 >= 1_000_000} == {1}  # then NO_FIX
-    assert sum(m.fix_type == 3 for m in gps) >= 5
-    assert gps[-1].time_usec - gps[-2].time_usec == 100000  # the companion asked for 10 Hz
+    gps2 = got["GPS2_RAW"]  # GPS1_TYPE 14: the real receiver is GPS2
+    t0 = gps2[0].time_usec
+    assert {m.fix_type for m in gps2 if m.time_usec - t0 < 1_000_000} == {3}  # real GNSS for the first second
+    assert {m.fix_type for m in gps2 if m.time_usec - t0 >= 1_000_000} == {1}  # then NO_FIX
+    assert sum(m.fix_type == 3 for m in gps2) == 5  # 5 Hz
+    gps1 = got["GPS_RAW_INT"]  # GPS1 echoes the companion's GPS_INPUT: NO_FIX before the first one
+    assert gps1[0].fix_type == 1 and gps1[-1].fix_type == 3 and gps1[-1].h_acc == 1000  # EchoCompanion's 1 m
+    assert gps1[-1].time_usec - gps1[-2].time_usec == 100000  # the companion asked for 10 Hz
+    home, origin = got["HOME_POSITION"][0], got["GPS_GLOBAL_ORIGIN"][0]
+    assert (home.latitude, home.longitude) == (origin.latitude, origin.longitude) == (got["SIMSTATE"][0].lat,
+                                                                                      got["SIMSTATE"][0].lng)
     assert len(got["RAW_IMU"]) == 201 and got["RAW_IMU"][0].zacc == -1000
     assert [round(m.yaw, 4) for m in got["ATTITUDE"][:1]] == [round(math.pi / 2, 4)]
 

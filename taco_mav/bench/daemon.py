@@ -49,8 +49,8 @@ def _play(port: int, duration: float, arrivals: list[float]) -> None:
         if k_hb <= el:
             mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
             if el < 2.0:
-                mav.gps_raw_int_send(int(t_ap * 1e6), 3, int(lat0 * 1e7), int(lon0 * 1e7), 115000, 80, 120, 500,
-                                     3000, 12)
+                mav.gps2_raw_send(int(t_ap * 1e6), 3, int(lat0 * 1e7), int(lon0 * 1e7), 115000, 80, 120, 500,
+                                  3000, 12, 0, 0)  # a real receiver as GPS2 (GPS1 is the daemon's GPS_INPUT)
             k_hb += 1
         while k_imu / 100.0 <= el:
             mav.raw_imu_send(int((100.0 + k_imu / 100.0) * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)

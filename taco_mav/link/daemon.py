@@ -29,17 +29,19 @@ from taco_mav.core.types import ImuSample
 from taco_mav.cvgl.base import Matcher
 from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
-from taco_mav.link.anchor import Anchor
+from taco_mav.link.anchor import GNSS_RANK, NO_ORIGIN_TEXTS, Anchor, OriginCandidate, OriginChooser
 from taco_mav.link.connection import Link
-from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders, ImuReading
+from taco_mav.link.decoders import (GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders,
+                                    GnssReading, ImuReading)
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
+from taco_mav.link.gnss import GnssEvent, GnssTracker
 from taco_mav.link.health import LinkWatch
 from taco_mav.link.imu_timeline import ImuTimeline, Verdict
 from taco_mav.link.options import DaemonOptions, DaemonStats
 from taco_mav.link.output import OutputStage
 from taco_mav.link.reconnect import pace_tcp_reconnect
-from taco_mav.link.requests import ParamCheck, StreamRequester, ekf3_gate_warnings
+from taco_mav.link.requests import GNSS_RATES, MessageRequest, ParamCheck, StreamRequester, ekf3_gate_warnings
 from taco_mav.link.scheduler import Periodic
 from taco_mav.link.timesync import ClockMap
 
@@ -48,6 +50,8 @@ log = logging.getLogger(__name__)
 SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6
 MAV_AUTOPILOT_INVALID = 8
 MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER = 6, 18
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+DRIVE_THROTTLE_MIN_PCT = 3  # VFR_HUD throttle at or above this (armed) means the autopilot drives
 
 
 __all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
@@ -83,6 +87,7 @@ class Daemon:
         self.attitude: AttitudeReading | None = None
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.last_imu: ImuReading | None = None
+        self._armed: bool | None = None  # from the autopilot's HEARTBEAT
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self._last_imu_clock = -math.inf
         self._last_status: dict[str, float] = {}
@@ -121,17 +126,23 @@ class Daemon:
         self.fixes.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
-        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0}
+        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
+        if (self.fixes.camera is not None and self.fixes.camera.needs_pose) or p.matcher == "emulator":
+            rates["SIMSTATE"] = p.link.imu_rate_hz  # simulators only (SITL sends it when asked): true pose
         if self.imu_kind is not None:
             rates[self.imu_kind] = p.link.imu_rate_hz
         else:
             rates["RAW_IMU"] = p.link.imu_rate_hz
-        if opt.origin is not None:
-            rates.pop("GPS_RAW_INT")
-            self._set_origin(*opt.origin, speed=0.0, course=None, source="--origin")
+        rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         self.requester = StreamRequester(self.link.send, self.link.mav, rates) if p.link.request_rates else None
-        self.params_check = ParamCheck(self.link.send, self.link.mav) if p.link.check_params and \
+        self.params_check = ParamCheck(self.link.send, self.link.mav, p.output.gps_id) if p.link.check_params and \
             "gps_input" in p.output.messages else None
+        self.gnss = GnssTracker(p.output.gps_id, "gps_input" in p.output.messages, p.output.hdop_uere_m,
+                                self.params_check.types if self.params_check is not None else None)
+        self.origin_chooser = OriginChooser()
+        self.origin_request = MessageRequest(self.link.send, self.link.mav, ORIGIN_MESSAGES)
+        if opt.origin is not None:
+            self._offer_origin(OriginCandidate(*opt.origin, speed=0.0, course=None, source="--origin"))
         now = self.clock()
         self.t_heartbeat = Periodic(p.link.heartbeat_hz, now)
         self.t_output = Periodic(p.output.rate_hz, now)
@@ -195,6 +206,7 @@ class Daemon:
             self.requester.tick(now, link.target_system, link.target_component)
         if self.params_check is not None:
             self.params_check.tick(now, link.target_system, link.target_component)
+        self._origin_tick(now)
         if self.t_stats.due(now):
             self.events.write("stats", **self.summary())
         if self.linkwatch.check(now):
@@ -222,6 +234,7 @@ class Daemon:
                     self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
                 if (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component):
                     self._heard()
+                    self._armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
             return
         if not link.target_system:
             self.decoders.reject(kind, "before_autopilot")
@@ -234,11 +247,12 @@ class Daemon:
             self._on_imu(msg, received)
         elif kind == "ATTITUDE":
             self.attitude = self.decoders.attitude(msg) or self.attitude
-        elif kind == "GPS_RAW_INT":
-            if self.origin is None:
-                g = self.decoders.gnss(msg)
-                if g is not None:
-                    self._set_origin(g.lat, g.lon, g.alt, g.speed, g.course_ned, "GPS_RAW_INT")
+        elif kind in GNSS_MESSAGES:
+            self._on_gnss(msg)
+        elif kind in ORIGIN_MESSAGES:
+            o = self.decoders.origin(msg) if self.origin is None else None
+            if o is not None:
+                self._offer_origin(OriginCandidate(o.lat, o.lon, o.alt, 0.0, None, o.source))
         elif kind == "SYSTEM_TIME":
             self.clockmap.on_system_time(msg.time_boot_ms)
         elif kind == "TIMESYNC":
@@ -248,6 +262,8 @@ class Daemon:
                 self.clockmap.on_timesync_reply(msg.tc1, msg.ts1)
         elif kind == "SIMSTATE":
             self._on_simstate(msg)
+        elif kind == "VFR_HUD":
+            self._on_vfr_hud(msg)
         elif kind == "COMMAND_ACK" and self.requester is not None:
             self.requester.on_message(msg, link.target_system, link.target_component)
         elif kind == "PARAM_VALUE" and self.params_check is not None:
@@ -293,6 +309,17 @@ class Daemon:
         self.stats.imu_samples += 1
         self.stats.imu_to_estimate_s.append(time.perf_counter() - received)
 
+    def _on_vfr_hud(self, msg: Any) -> None:
+        """The autopilot's throttle output (%): armed with throttle means it drives, which vetoes taco+'s
+        zero-velocity updates (a smooth cruise looks still to the IMU, issue 19)."""
+        throttle = getattr(msg, "throttle", None)
+        if not isinstance(throttle, int) or not -100 <= throttle <= 100:
+            self.decoders.reject("VFR_HUD", "range")
+            return
+        set_drive = getattr(self.loc, "set_drive_command", None)
+        if set_drive is not None and self.last_imu is not None and self._armed is not None:
+            set_drive(self.last_imu.t, self._armed and abs(throttle) >= DRIVE_THROTTLE_MIN_PCT)
+
     def _on_simstate(self, msg: Any) -> None:
         pose = self.decoders.simstate(msg)
         if pose is None or self.last_imu is None:
@@ -336,6 +363,79 @@ class Daemon:
         log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", t_new - t_last, abs(c.carried_m), c.sigma)
         self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=c.sigma, carried_m=c.carried_m)
         self.loc = self.anchor.localiser(t_new, self.attitude.yaw, c.xy, c.heading, c.speed, c.sigma)
+
+    def _offer_origin(self, c: OriginCandidate) -> None:
+        """An origin offered (--origin, EKF origin, home, a steady real GNSS): `OriginChooser` says when to take
+        which."""
+        chosen = self.origin_chooser.offer(c, self.clock())
+        if chosen is not None:
+            self._take_origin(chosen)
+
+    def _take_origin(self, c: OriginCandidate) -> None:
+        self._set_origin(c.lat, c.lon, c.alt, c.speed, c.course, c.source)
+        if c.rank == GNSS_RANK:
+            self.anchor.set_start((0.0, 0.0), c.speed, c.course, None, c.t)  # carried to the first IMU sample
+        elif (fresh := self.gnss.fresh(self.clock())) is not None:
+            self._start_from_gnss(fresh)
+
+    def _start_from_gnss(self, r: GnssReading) -> None:
+        """Before the first anchoring: a real fix's speed and course, and its position if the vehicle has moved
+        away from the offered origin (`Anchor.start_from_fix`)."""
+        assert self.origin is not None
+        f = self.gnss.fix(r, self.origin, None)
+        if f is not None and self.anchor.start_from_fix(f, r.speed, r.course_ned):
+            self.events.write("start_from_gnss", instance=r.instance, x=float(f.xy[0]), y=float(f.xy[1]),
+                              sigma_h_m=f.sigma_h_m)
+
+    def _on_gnss(self, msg: Any) -> None:
+        """GPS_RAW_INT / GPS2_RAW: a real instance's 3D fix offers the origin, then goes to the Localiser
+        (`add_gnss`, when it has one); our own instance's echo is only counted (`GnssTracker`)."""
+        instance, now = GNSS_MESSAGES[msg.get_type()], self.clock()
+        reading = self.decoders.gnss(msg) if self.gnss.is_real(instance) else None
+        r, events = self.gnss.on_message(instance, reading, int(msg.fix_type), now, self.origin)
+        self._gnss_events(events)
+        if r is None:
+            return
+        if self.origin is None:
+            if self.gnss.steady:
+                self._offer_origin(OriginCandidate(r.lat, r.lon, r.alt, r.speed, r.course_ned, msg.get_type(), r.t))
+            return
+        if self.loc is None:
+            self._start_from_gnss(r)
+            return
+        add_gnss = getattr(self.loc, "add_gnss", None)
+        fix = self.gnss.fix(r, self.origin, self.last_imu.t if self.last_imu is not None else None)
+        if add_gnss is not None and fix is not None:
+            self._gnss_events(self.gnss.outcome(add_gnss(fix), now))
+
+    def _gnss_events(self, events: list[GnssEvent]) -> None:
+        for e in events:
+            log.warning("%s", e.text) if e.severity == SEV_WARNING else log.info("%s", e.text)
+            self.events.write(e.kind, **e.fields)
+            self._status(e.severity if e.severity is not None else SEV_INFO, e.text, key=None)
+
+    def _origin_tick(self, now: float) -> None:
+        """Periodic: take an origin whose grace ran out; while none, ask for GPS_GLOBAL_ORIGIN / HOME_POSITION
+        and say every 10 s how to give one; GNSS loss by silence."""
+        link = self.link
+        assert link is not None
+        if self.origin is None:
+            if link.target_system:
+                self.origin_chooser.heard(now)
+            chosen = self.origin_chooser.poll(now)
+            if chosen is not None:
+                self._take_origin(chosen)
+        if self.origin is None:
+            self.origin_request.tick(now, link.target_system, link.target_component)
+            if self.origin_chooser.notice_due(now):
+                ours = f"GPS{self.profile.output.gps_id + 1}" if "gps_input" in self.profile.output.messages else None
+                log.warning("no origin yet: give one with --origin LAT,LON[,ALT], set the EKF origin or home from "
+                            "the ground station, or connect a real GNSS with a 3D fix%s",
+                            f" (not {ours}: that instance carries our own output)" if ours else "")
+                self.events.write("no_origin", notices=self.origin_chooser.notices, gnss=self.gnss.summary())
+                for text in NO_ORIGIN_TEXTS:
+                    self._status(SEV_WARNING, text, key=None)
+        self._gnss_events(self.gnss.tick(now))
 
     # ------------------------------------------------------------------ outputs
     def _send_outputs(self, now: float) -> None:

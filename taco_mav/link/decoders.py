@@ -6,7 +6,9 @@ Frames and units (DESIGN.md):
 - HIGHRES_IMU: body FRD, m/s^2 and rad/s; time_usec.
 - ATTITUDE: roll, pitch, yaw radians, NED (yaw 0 = north, CW); rollspeed/pitchspeed/yawspeed FRD body rad/s;
   time_boot_ms.
-- GPS_RAW_INT: lat/lon degE7, alt mm AMSL, vel cm/s, cog cdeg (65535 = unknown).
+- GPS_RAW_INT (GPS instance 1) / GPS2_RAW (instance 2): lat/lon degE7, alt mm AMSL, eph HDOP x 100, vel cm/s,
+  cog cdeg (65535 = unknown for all three), h_acc mm and vel_acc mm/s (0 = not reported).
+- GPS_GLOBAL_ORIGIN / HOME_POSITION: latitude/longitude degE7, altitude mm AMSL.
 - SIMSTATE (simulators only): lat/lng degE7, yaw radians NED (the true pose).
 All times come out as autopilot seconds.
 """
@@ -25,6 +27,13 @@ MAX_ATTITUDE_CARRY_S = 0.2  # s: the furthest an ATTITUDE is carried at its rate
 
 IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 UTM_LAT_MIN, UTM_LAT_MAX = -80.0, 84.0  # degrees: the daemon works on a UTM grid (geo.utm_epsg_for)
+GNSS_MESSAGES = {"GPS_RAW_INT": 1, "GPS2_RAW": 2}  # message -> GPS instance it reports (1 = GPS1), as ArduPilot
+ORIGIN_MESSAGES = ("GPS_GLOBAL_ORIGIN", "HOME_POSITION")
+UNKNOWN_U16 = 65535
+MAX_ALT_M = 20_000.0  # |altitude| beyond this (m AMSL) is not a ground vehicle's
+MAX_SPEED_MPS = 150.0  # ground speed beyond this is not a ground vehicle's
+MAX_H_ACC_M = 1000.0  # a "3D fix" claiming worse than this is garbage
+MAX_FIX_TYPE = 8  # GPS_FIX_TYPE_PPP
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,8 +82,11 @@ def euler_rates(roll: float, pitch: float, p: float, q: float, r: float) -> tupl
 
 @dataclass(frozen=True, slots=True)
 class GnssReading:
-    """t: autopilot s; lat, lon: degrees WGS84; alt: metres AMSL; speed: m/s over ground; course_ned: radians
-    (0 = north, CW) or None when unknown; fix_type: GPS_FIX_TYPE; satellites: count (255 = unknown)."""
+    """t: autopilot s (the message's time_usec); lat, lon: degrees WGS84; alt: metres AMSL; speed: m/s over
+    ground (0 when unknown, see speed_known); course_ned: radians (0 = north, CW) or None when unknown;
+    fix_type: GPS_FIX_TYPE; satellites: count (255 = unknown); instance: 1 = GPS1 (GPS_RAW_INT), 2 = GPS2
+    (GPS2_RAW); h_acc_m: 1-sigma horizontal accuracy m, vel_acc_mps: 1-sigma speed accuracy m/s, hdop: HDOP;
+    each None when the receiver did not report it."""
 
     t: float
     lat: float
@@ -84,6 +96,22 @@ class GnssReading:
     course_ned: float | None
     fix_type: int
     satellites: int
+    instance: int = 1
+    h_acc_m: float | None = None
+    vel_acc_mps: float | None = None
+    hdop: float | None = None
+    speed_known: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class OriginReading:
+    """A position the autopilot offers as the start: GPS_GLOBAL_ORIGIN (the EKF origin) or HOME_POSITION.
+    lat, lon: degrees WGS84; alt: metres AMSL; source: the message name."""
+
+    lat: float
+    lon: float
+    alt: float
+    source: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -171,10 +199,16 @@ class Decoders:
         return AttitudeReading(msg.time_boot_ms * 1e-3, r, p, math.remainder(y, 2 * math.pi), rates)
 
     def gnss(self, msg: Any) -> GnssReading | None:
-        """GPS_RAW_INT with a 3D fix (fix_type >= 3) inside UTM's latitude band -> GnssReading, or None (counted)."""
+        """GPS_RAW_INT or GPS2_RAW with a 3D fix (fix_type >= 3) inside UTM's latitude band -> GnssReading, or
+        None (counted as "<MESSAGE>:<reason>"). Values no ground vehicle's receiver reports (altitude, speed,
+        course, accuracy, fix type out of range) refuse the whole reading."""
         kind = msg.get_type()
-        if int(msg.fix_type) < 3:
+        fix = int(msg.fix_type)
+        if fix < 3:
             self.reject(kind, "no_3d_fix")
+            return None
+        if fix > MAX_FIX_TYPE:
+            self.reject(kind, "fix_type_range")
             return None
         lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
         if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (msg.lat == 0 and msg.lon == 0):
@@ -183,10 +217,44 @@ class Decoders:
         if not _on_utm_grid(lat, lon):
             self.reject(kind, "outside_utm")  # polar: no UTM zone to work in
             return None
-        speed = 0.0 if msg.vel == 65535 else msg.vel * 0.01
-        course = None if msg.cog == 65535 else math.radians(msg.cog * 0.01)
-        return GnssReading(msg.time_usec * 1e-6, lat, lon, msg.alt * 1e-3, speed, course, int(msg.fix_type),
-                           int(msg.satellites_visible))
+        alt = msg.alt * 1e-3
+        if abs(alt) > MAX_ALT_M:
+            self.reject(kind, "alt_range")
+            return None
+        speed_known = int(msg.vel) != UNKNOWN_U16
+        speed = msg.vel * 0.01 if speed_known else 0.0
+        if speed > MAX_SPEED_MPS:
+            self.reject(kind, "speed_range")
+            return None
+        cog = int(msg.cog)
+        if cog != UNKNOWN_U16 and cog > 36000:
+            self.reject(kind, "course_range")
+            return None
+        course = None if cog == UNKNOWN_U16 else math.radians(cog * 0.01)
+        h_acc = int(getattr(msg, "h_acc", 0)) * 1e-3 or None  # mm; 0 = not reported
+        if h_acc is not None and h_acc > MAX_H_ACC_M:
+            self.reject(kind, "accuracy_range")
+            return None
+        vel_acc = int(getattr(msg, "vel_acc", 0)) * 1e-3 or None  # mm/s; 0 = not reported
+        eph = int(msg.eph)
+        hdop = eph * 0.01 if 0 < eph < UNKNOWN_U16 else None
+        return GnssReading(msg.time_usec * 1e-6, lat, lon, alt, speed, course, fix, int(msg.satellites_visible),
+                           GNSS_MESSAGES.get(kind, 1), h_acc, vel_acc, hdop, speed_known)
+
+    def origin(self, msg: Any) -> OriginReading | None:
+        """GPS_GLOBAL_ORIGIN or HOME_POSITION -> OriginReading, or None (counted) when unset or out of range."""
+        kind = msg.get_type()
+        if msg.latitude == 0 and msg.longitude == 0:
+            self.reject(kind, "unset")
+            return None
+        lat, lon, alt = msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3
+        if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or abs(alt) > MAX_ALT_M:
+            self.reject(kind, "position_range")
+            return None
+        if not _on_utm_grid(lat, lon):
+            self.reject(kind, "outside_utm")
+            return None
+        return OriginReading(lat, lon, alt, kind)
 
     def simstate(self, msg: Any) -> SimPose | None:
         """SIMSTATE -> the simulator's true pose, or None (counted)."""

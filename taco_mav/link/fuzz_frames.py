@@ -2,8 +2,9 @@
 
 `AutopilotStream` is a level ArduPilot rover driving a straight line (heading `yaw_deg` true, `speed` m/s) seen
 from its MAVLink side: per 10 ms step of autopilot time it emits the IMU message of the episode's kind (100 Hz),
-ATTITUDE (50 Hz), SIMSTATE (10 Hz), HEARTBEAT / SYSTEM_TIME / a TIMESYNC request (1 Hz) and GPS_RAW_INT (4 Hz
-for the first second). Every frame is sysid 1, compid 1, MAVLink 2, as raw bytes.
+ATTITUDE (50 Hz), SIMSTATE (10 Hz), HEARTBEAT / SYSTEM_TIME / a TIMESYNC request (1 Hz) and GPS2_RAW (a real
+receiver as GPS2, 4 Hz for the first second; GPS1 = GPS_RAW_INT is the daemon's own GPS_INPUT, issue 14).
+Every frame is sysid 1, compid 1, MAVLink 2, as raw bytes.
 
 `Mutator.frame()` draws one mutation (see MUTATIONS) and returns its name and the datagrams to send. Everything
 random comes from one `random.Random(seed)`: the same seed gives the same bytes.
@@ -23,8 +24,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 m = mavlink
 G0 = 9.80665
 STEP_S = 0.01  # autopilot seconds per stream step (100 Hz IMU)
-TARGETS = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "ATTITUDE", "GPS_RAW_INT", "SYSTEM_TIME", "TIMESYNC",
-           "SIMSTATE", "HEARTBEAT", "COMMAND_ACK", "PARAM_VALUE")
+TARGETS = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "ATTITUDE", "GPS_RAW_INT", "GPS2_RAW", "SYSTEM_TIME",
+           "TIMESYNC", "SIMSTATE", "HEARTBEAT", "COMMAND_ACK", "PARAM_VALUE")
 MUTATIONS = ("random_bytes", "bit_flip", "truncate", "bad_crc", "unknown_id", "field_values", "nonfinite",
              "zero_dt", "negative_dt", "time_back", "time_forward", "duplicate", "reorder", "foreign_source",
              "concat", "split", "mavlink1")
@@ -75,6 +76,9 @@ class AutopilotStream:
         if kind == "GPS_RAW_INT":
             return tx.gps_raw_int_encode(us, 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3), 80, 120,
                                          int(self.speed * 100), int(math.degrees(self.yaw) * 100), 12)
+        if kind == "GPS2_RAW":
+            return tx.gps2_raw_encode(us, 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3), 80, 120,
+                                      int(self.speed * 100), int(math.degrees(self.yaw) * 100), 12, 0, 0)
         if kind == "SYSTEM_TIME":
             return tx.system_time_encode(1_700_000_000_000_000 + us, ms)
         if kind == "TIMESYNC":
@@ -101,7 +105,7 @@ class AutopilotStream:
         if k % 100 == 0:
             out += [self.pack(self.message(kind)) for kind in ("HEARTBEAT", "SYSTEM_TIME", "TIMESYNC")]
         if k <= 100 and k % 25 == 0:
-            out.append(self.pack(self.message("GPS_RAW_INT")))
+            out.append(self.pack(self.message("GPS2_RAW")))
         if k % 2 == 0:
             out.append(self.pack(self.message("ATTITUDE")))
         if k % 10 == 0:
@@ -157,7 +161,7 @@ class Mutator:
 
     def _timed(self, t: float) -> bytes:
         kind = self.stream.imu_kind if self.rng.random() < 0.7 else self.rng.choice(("ATTITUDE", "SYSTEM_TIME",
-                                                                                     "GPS_RAW_INT", "SIMSTATE"))
+                                                                                     "GPS2_RAW", "SIMSTATE"))
         return self.stream.pack(self._valid(kind, t))
 
     # ------------------------------------------------------------------ mutations

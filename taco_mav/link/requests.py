@@ -1,7 +1,9 @@
 """Start-up requests to the autopilot: message rates (MAV_CMD_SET_MESSAGE_INTERVAL, falling back to
-REQUEST_DATA_STREAM when not acknowledged) and the GPS parameter check (PARAM_REQUEST_READ GPS1_TYPE and the
-older GPS_TYPE; anything but 14 = MAV is warned about loudly). Both are driven by the daemon loop: `tick(now)`
-sends what is due, `on_message(msg)` consumes answers."""
+REQUEST_DATA_STREAM when not acknowledged), one-off messages (MAV_CMD_REQUEST_MESSAGE, repeated while wanted:
+GPS_GLOBAL_ORIGIN and HOME_POSITION until the daemon has an origin) and the GPS parameter check
+(PARAM_REQUEST_READ GPS1_TYPE / GPS2_TYPE and their pre-4.6 names GPS_TYPE / GPS_TYPE2: which GPS instance is
+ours, fed by GPS_INPUT, and which is a real receiver; ours anything but 14 = MAV is warned about loudly). All
+are driven by the daemon loop: `tick(now)` sends what is due, `on_message(msg)` consumes answers."""
 
 from __future__ import annotations
 
@@ -21,6 +23,10 @@ _STREAM_OF = {
     "SCALED_IMU2": m.MAV_DATA_STREAM_RAW_SENSORS, "SCALED_IMU3": m.MAV_DATA_STREAM_RAW_SENSORS,
     "HIGHRES_IMU": m.MAV_DATA_STREAM_RAW_SENSORS, "ATTITUDE": m.MAV_DATA_STREAM_EXTRA1,
     "GPS_RAW_INT": m.MAV_DATA_STREAM_EXTENDED_STATUS, "SYSTEM_TIME": m.MAV_DATA_STREAM_EXTENDED_STATUS,
+    "GPS2_RAW": m.MAV_DATA_STREAM_EXTENDED_STATUS, "SIMSTATE": m.MAV_DATA_STREAM_EXTRA1,
+    "VFR_HUD": m.MAV_DATA_STREAM_EXTRA2, "SERVO_OUTPUT_RAW": m.MAV_DATA_STREAM_RC_CHANNELS,
+    # sent on change and on MAV_CMD_REQUEST_MESSAGE only: no stream group to fall back to
+    "HOME_POSITION": None, "GPS_GLOBAL_ORIGIN": None,
 }
 
 
@@ -74,6 +80,9 @@ class StreamRequester:
     def _fallback(self, r: _Req, target_system: int, target_component: int, why: str) -> None:
         r.failed = True
         stream = _STREAM_OF.get(r.name, m.MAV_DATA_STREAM_ALL)
+        if stream is None:
+            log.info("SET_MESSAGE_INTERVAL %s %s: asked for with MAV_CMD_REQUEST_MESSAGE only", r.name, why)
+            return
         log.warning("SET_MESSAGE_INTERVAL %s %s: falling back to REQUEST_DATA_STREAM %d at %.0f Hz", r.name, why,
                     stream, r.rate_hz)
         self.fallback_streams.add(stream)
@@ -95,28 +104,68 @@ class StreamRequester:
             self._fallback(r, target_system, target_component, f"refused (result {msg.result})")
 
 
+# Asked for beside the daemon's inputs (issue 14): the second GPS instance and the offered origins.
+GNSS_RATES = {"GPS2_RAW": 2.0, "HOME_POSITION": 0.5, "GPS_GLOBAL_ORIGIN": 0.5}
+
+
+@dataclass
+class MessageRequest:
+    """MAV_CMD_REQUEST_MESSAGE for each of `names` every `retry_s` while `tick(..., wanted=True)` (the daemon:
+    GPS_GLOBAL_ORIGIN and HOME_POSITION until it has an origin; an autopilot without them stays silent)."""
+
+    send: Callable[[Any], None]
+    mav: Any
+    names: tuple[str, ...]
+    retry_s: float = 2.0
+    sent: int = 0
+    _next: float = -math.inf
+
+    def tick(self, now: float, target_system: int, target_component: int, wanted: bool = True) -> None:
+        if not wanted or not target_system or now < self._next:
+            return
+        self._next = now + self.retry_s
+        for name in self.names:
+            msg_id = getattr(m, f"MAVLINK_MSG_ID_{name}")
+            self.send(self.mav.command_long_encode(target_system, target_component, m.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                   msg_id, 0, 0, 0, 0, 0, 0))
+            self.sent += 1
+
+
 GPS_TYPE_MAV = 14
+# parameter name -> GPS instance (1 = GPS1); ArduPilot 4.6 renamed GPS_TYPE / GPS_TYPE2 to GPS1_TYPE / GPS2_TYPE
+GPS_TYPE_PARAMS = {"GPS1_TYPE": 1, "GPS2_TYPE": 2, "GPS_TYPE": 1, "GPS_TYPE2": 2}
 
 
 @dataclass
 class ParamCheck:
-    """Read GPS1_TYPE (and GPS_TYPE, its pre-4.5 name) once; `warnings` collects what was found wrong.
-    `value` is the first answer (None until one arrives)."""
+    """Read the GPS type of both instances once (GPS1_TYPE / GPS2_TYPE, or GPS_TYPE / GPS_TYPE2 on firmware
+    before 4.6; the autopilot answers the names it has). `gps_id` is the profile's output.gps_id: our
+    GPS_INPUT goes to instance gps_id + 1, whose type must be 14 (MAV), else `warnings` says so.
+    `types`: instance -> GPSn_TYPE as answered; `value` / `answered_by`: our instance's type and the parameter
+    that gave it (None until answered)."""
 
     send: Callable[[Any], None]
     mav: Any
-    names: tuple[str, ...] = ("GPS1_TYPE", "GPS_TYPE")
+    gps_id: int = 0
+    names: tuple[str, ...] = ("GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2")
     retry_s: float = 2.0
     tries: int = 3
     value: float | None = None
     answered_by: str | None = None
+    types: dict[int, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     _tries: int = 0
     _next: float = 0.0
 
     @property
+    def instance(self) -> int:
+        """Our GPS instance, 1-based (GPS1 = 1)."""
+        return self.gps_id + 1
+
+    @property
     def done(self) -> bool:
-        return self.value is not None or self._tries >= self.tries
+        wanted = {GPS_TYPE_PARAMS[n] for n in self.names if n in GPS_TYPE_PARAMS}
+        return wanted <= set(self.types) or self._tries >= self.tries
 
     def tick(self, now: float, target_system: int, target_component: int) -> None:
         if self.done or now < self._next or not target_system:
@@ -124,30 +173,43 @@ class ParamCheck:
         self._next = now + self.retry_s
         self._tries += 1
         for name in self.names:
-            self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
-        if self._tries >= self.tries:
-            log.warning("no answer to PARAM_REQUEST_READ %s: cannot check that the autopilot takes GPS_INPUT "
-                        "(set GPS1_TYPE=14 on ArduPilot)", "/".join(self.names))
+            if GPS_TYPE_PARAMS.get(name) not in self.types:
+                self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
+        if self._tries >= self.tries and self.value is None:
+            log.warning("no answer to PARAM_REQUEST_READ GPS%d_TYPE: cannot check that the autopilot takes GPS_INPUT "
+                        "(set GPS%d_TYPE=14 on ArduPilot)", self.instance, self.instance)
+
+    def is_mav(self, instance: int) -> bool | None:
+        """True when GPS instance `instance` (1-based) is of type 14 (fed by GPS_INPUT), None while unknown."""
+        t = self.types.get(instance)
+        return None if t is None else t == GPS_TYPE_MAV
 
     def on_message(self, msg: Any) -> str | None:
-        """Consume PARAM_VALUE; returns a warning text when the parameter is not 14."""
-        if msg.get_type() != "PARAM_VALUE" or self.value is not None:
+        """Consume PARAM_VALUE; returns a warning text when our instance's type is not 14."""
+        if msg.get_type() != "PARAM_VALUE":
             return None
         pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else str(msg.param_id)
         pid = pid.rstrip("\x00")
-        if pid not in self.names:
+        if pid not in self.names or pid not in GPS_TYPE_PARAMS:
+            return None
+        instance = GPS_TYPE_PARAMS[pid]
+        if instance in self.types:
             return None
         value = float(msg.param_value)
         if not math.isfinite(value):  # a corrupt answer: keep asking
             log.warning("PARAM_VALUE %s is not finite (%r): ignored", pid, value)
             return None
+        self.types[instance] = int(round(value))
+        log.info("%s=%d (GPS%d)", pid, self.types[instance], instance)
+        if instance != self.instance:
+            return None
         self.value, self.answered_by = value, pid
-        if int(round(self.value)) != GPS_TYPE_MAV:
-            text = f"{pid}={int(round(self.value))}, GPS_INPUT needs {pid}=14 (MAV): it will be ignored"
+        if self.types[instance] != GPS_TYPE_MAV:
+            text = f"{pid}={self.types[instance]}, GPS_INPUT needs {pid}=14 (MAV): it will be ignored"
             self.warnings.append(text)
             log.error("!!! %s !!!", text)
             return text
-        log.info("%s=14: the autopilot takes GPS_INPUT", pid)
+        log.info("%s=14: the autopilot takes GPS_INPUT as GPS%d", pid, instance)
         return None
 
 

@@ -16,8 +16,8 @@ import numpy as np
 
 from taco_mav.sim.source import SimDrive
 
-__all__ = ["G", "MG_PER_MPS2", "ardupilot_imu_ints", "attitude", "gps_raw_int", "heartbeat", "highres_imu",
-           "raw_imu", "scaled_imu", "simstate", "system_time"]
+__all__ = ["G", "MG_PER_MPS2", "ardupilot_imu_ints", "attitude", "gps_global_origin", "gps_raw_int", "heartbeat",
+           "highres_imu", "home_position", "raw_imu", "scaled_imu", "simstate", "system_time"]
 
 G = 9.80665
 MG_PER_MPS2 = 1000.0 / G
@@ -99,6 +99,17 @@ def gps_raw_int(mav: Any, drive: SimDrive, i: int, boot_s: float, fix: bool, sat
         int(round(float(drive.alt[i]) * 1000.0)), int(round(hdop * 100)), int(round(hdop * 150)),
         int(round(math.hypot(vn, ve) * 100.0)), cog, satellites,
         int(round(float(drive.alt[i]) * 1000.0)), int(round(h_acc_m * 1000)), int(round(h_acc_m * 1500)), 100, 0, 0)
+
+
+def home_position(mav: Any, lat: float, lon: float, alt: float, boot_s: float) -> Any:
+    """HOME_POSITION at lat, lon (degrees) and alt (m AMSL): degE7, mm; local position and approach zero."""
+    return mav.home_position_encode(_deg_e7(lat), _deg_e7(lon), int(round(alt * 1000.0)), 0.0, 0.0, 0.0,
+                                    [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(round(boot_s * 1e6)))
+
+
+def gps_global_origin(mav: Any, lat: float, lon: float, alt: float, boot_s: float) -> Any:
+    """GPS_GLOBAL_ORIGIN (the EKF origin) at lat, lon (degrees) and alt (m AMSL): degE7, mm."""
+    return mav.gps_global_origin_encode(_deg_e7(lat), _deg_e7(lon), int(round(alt * 1000.0)), int(round(boot_s * 1e6)))
 
 
 def simstate(mav: Any, drive: SimDrive, i: int) -> Any:

@@ -6,6 +6,8 @@ drive's zone and are taken relative to the drive's origin (ENU metres). ATE (DES
 rigid first-pose alignment (`taco_mav.evaluation.metrics`): when the first update reports a yaw, the estimate
 is turned and shifted so its first pose matches the truth; without one it is already in the truth's frame
 (both start at the same GNSS origin) and is left as it is. `ate_unaligned_m` is the plain RMSE in UTM.
+`ate_denied_m` / `max_error_denied_m`: the same errors over the updates from `denied_from_s` of drive time on
+(when GNSS is denied or spoofed), the figures that matter for a GNSS substitute.
 """
 
 from __future__ import annotations
@@ -30,9 +32,10 @@ def _truth_at(drive: SimDrive, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def score_updates(drive: SimDrive, updates: Sequence[GpsUpdate], play_start: float,
-                  play_end: float | None = None) -> dict[str, Any]:
+                  play_end: float | None = None, denied_from_s: float | None = None) -> dict[str, Any]:
     """Per-drive figures for `updates` received while `drive` played from autopilot time `play_start` (s) to
-    `play_end` (s; None: to the drive's end).
+    `play_end` (s; None: to the drive's end); denied_from_s: drive time (s) from which GNSS is denied or
+    spoofed (None: never, no `ate_denied_m`).
 
     Only updates within the played span are scored; `ate_m` uses those with a 3D fix (what the EKF may
     consume), `ate_all_m` every one. Returns a dict of results.json sequence fields (NaN-free: absent figures
@@ -46,6 +49,8 @@ def score_updates(drive: SimDrive, updates: Sequence[GpsUpdate], play_start: flo
     if not fix3.any():
         out.update(ate_m=None, ate_unaligned_m=None, ate_all_m=None, length_km=0.0, ate_m_per_km=None,
                    max_error_m=None, final_error_m=None)
+        if denied_from_s is not None:
+            out.update(ate_denied_m=None, max_error_denied_m=None, denied_from_s=denied_from_s, denied_updates=0)
         return out
     proj = UtmProjector(drive.utm_epsg)
     lat = np.array([u.lat for u in updates])
@@ -76,6 +81,11 @@ def score_updates(drive: SimDrive, updates: Sequence[GpsUpdate], play_start: flo
         first_pose_aligned=est_theta0 is not None, scored_from_s=t_lo, scored_to_s=t_hi,
         fix3_fraction=float(fix3.sum() / max(1, inside.sum())),
     )
+    if denied_from_s is not None:
+        denied = t[idx] >= denied_from_s
+        out.update(ate_denied_m=rmse(err[denied]) if denied.any() else None,
+                   max_error_denied_m=float(err[denied].max()) if denied.any() else None,
+                   denied_from_s=float(denied_from_s), denied_updates=int(denied.sum()))
     stamps = [(u.stamp_unix_s - drive.utc0) - tt for u, tt in zip(updates, t) if u.stamp_unix_s is not None]
     if stamps and abs(float(np.median(stamps))) < 60.0:  # a companion on another calendar says nothing here
         out["stamp_minus_arrival_p50_ms"] = float(np.median(stamps) * 1e3)

@@ -22,9 +22,11 @@ MAV_RESULT_UNSUPPORTED = 3
 MAV_PARAM_TYPE_INT8 = 2
 MAV_PARAM_TYPE_REAL32 = 9
 
-# name -> (value, MAV_PARAM_TYPE). GPS1_TYPE 14 = MAVLink GPS (GPS_INPUT); EK3_SRC1_POSXY 3 = GPS.
+# name -> (value, MAV_PARAM_TYPE), ArduPilot 4.6 names. GPS1_TYPE 14 = MAVLink GPS (GPS_INPUT), GPS2_TYPE 1 = a
+# real receiver (auto-detected); EK3_SRC1_POSXY 3 = GPS.
 DEFAULT_PARAMS: dict[str, tuple[float, int]] = {
     "GPS1_TYPE": (14.0, MAV_PARAM_TYPE_INT8),
+    "GPS2_TYPE": (1.0, MAV_PARAM_TYPE_INT8),
     "GPS_AUTO_SWITCH": (1.0, MAV_PARAM_TYPE_INT8),
     "EK3_SRC1_POSXY": (3.0, MAV_PARAM_TYPE_INT8),
     "EK3_SRC1_VELXY": (3.0, MAV_PARAM_TYPE_INT8),
@@ -49,11 +51,12 @@ class AutopilotServices:
     """
 
     def __init__(self, mav: Any, sysid: int = 1, compid: int = 1, gps1_type: int = 14,
-                 supported_messages: frozenset[int] = frozenset()) -> None:
+                 supported_messages: frozenset[int] = frozenset(), gps2_type: int = 1) -> None:
         self.mav = mav
         self.sysid, self.compid = sysid, compid
         self.params: dict[str, tuple[float, int]] = dict(DEFAULT_PARAMS)
         self.params["GPS1_TYPE"] = (float(gps1_type), MAV_PARAM_TYPE_INT8)
+        self.params["GPS2_TYPE"] = (float(gps2_type), MAV_PARAM_TYPE_INT8)
         self.supported = supported_messages
         self.intervals: dict[int, float] = {}
         self.requested: list[int] = []

@@ -2,10 +2,13 @@
 
 Streams (sysid/compid 1/1, ardupilotmega, MAVLink 2), stamped on the simulated autopilot clock (`SimClock`,
 seconds since boot; drive time 0 plays at `play_start`): HEARTBEAT and SYSTEM_TIME at 1 Hz, RAW_IMU,
-ATTITUDE and SIMSTATE at the drive's data rate, GPS_RAW_INT at 5 Hz (a 3D fix until `deny_after_s` of drive
-time, then NO_FIX). SCALED_IMU and HIGHRES_IMU stream once a companion asks with SET_MESSAGE_INTERVAL; asked
-intervals thin the data-rate streams too. Parameters, commands and TIMESYNC are answered by
-`AutopilotServices`; every GPS_INPUT goes through `GpsInputMonitor` (ArduPilot's driver and EKF gates).
+ATTITUDE and SIMSTATE at the drive's data rate, GPS_RAW_INT (GPS1) and GPS2_RAW (GPS2, unless GPS2_TYPE is 0)
+at 5 Hz, HOME_POSITION and GPS_GLOBAL_ORIGIN at 1 Hz (the home, unless `send_home` is off). The GPS instance
+whose type is 14 echoes the companion's GPS_INPUT (`receiver.EchoInstance`); the other is the drive's real
+receiver (`receiver.GnssReceiver`: noise, denial, spoofing). SCALED_IMU and HIGHRES_IMU stream once a companion
+asks with SET_MESSAGE_INTERVAL; asked intervals thin the data-rate streams too; MAV_CMD_REQUEST_MESSAGE sends
+one at the next sample. Parameters, commands and TIMESYNC are answered by `AutopilotServices`; every GPS_INPUT
+goes through `GpsInputMonitor` (ArduPilot's driver and EKF gates), serving the type-14 instance.
 
 Playback waits (sending HEARTBEATs) until the companion's HEARTBEAT is heard, so nothing is played into a
 closed port. With `lockstep` the clock is held and moved sample by sample (each sample is sent before the
@@ -32,6 +35,7 @@ from taco_mav.errors import ConfigError, TacoError  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.clock import SimClock  # noqa: E402
 from taco_mav.sim.gps_mav import GpsInputMonitor  # noqa: E402
+from taco_mav.sim.receiver import EchoInstance, GnssReceiver, gps_message  # noqa: E402
 from taco_mav.sim.services import AutopilotServices  # noqa: E402
 from taco_mav.sim.source import SimDrive, open_drive  # noqa: E402
 
@@ -46,23 +50,38 @@ DATA_STREAMS = (M.MAVLINK_MSG_ID_RAW_IMU, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_M
 DEFAULT_INTERVALS: dict[int, float] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0, M.MAVLINK_MSG_ID_GPS_RAW_INT: 0.2,
     M.MAVLINK_MSG_ID_RAW_IMU: 0.0, M.MAVLINK_MSG_ID_ATTITUDE: 0.0, M.MAVLINK_MSG_ID_SIMSTATE: 0.0,
-    M.MAVLINK_MSG_ID_SCALED_IMU: -1.0, M.MAVLINK_MSG_ID_HIGHRES_IMU: -1.0,
+    M.MAVLINK_MSG_ID_SCALED_IMU: -1.0, M.MAVLINK_MSG_ID_HIGHRES_IMU: -1.0, M.MAVLINK_MSG_ID_GPS2_RAW: 0.2,
+    M.MAVLINK_MSG_ID_HOME_POSITION: 1.0, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
 }
+GPS_TYPE_MAV = 14
 
 
 @dataclass(frozen=True)
 class SimOptions:
     """speed: real-time factor; deny_after_s: drive seconds of real GNSS (1.0 = the start-up fix only, sent
-    five times in the first second); duration_s: play at most this much of the drive; lockstep: see the module
-    docstring; gps1_type: the GPS1_TYPE parameter reported (14 = MAVLink); wait_companion_s: how long to wait
-    for the companion's HEARTBEAT before playing anyway; drain_s: wall seconds to keep listening after the
-    drive ends; boot_offset_s: autopilot uptime when the simulator starts."""
+    five times in the first second; 0 = never a fix; inf = never denied); duration_s: play at most this much
+    of the drive; lockstep: see the module docstring; gps1_type / gps2_type: the GPS1_TYPE / GPS2_TYPE
+    parameters (14 = MAVLink; gps2_type None: 1 when gps1_type is 14, else 14); gnss_noise_m: the real
+    receiver's 1-sigma (white + Gauss-Markov bias, seeded by `seed`); spoof_after_s / spoof_drift_mps /
+    spoof_jump_m / spoof_bearing_deg: spoofing (receiver.py); home: (lat, lon, alt m AMSL) for HOME_POSITION and
+    GPS_GLOBAL_ORIGIN (None: the drive's start), send_home False: neither is ever sent; wait_companion_s: how
+    long to wait for the companion's HEARTBEAT before playing anyway; drain_s: wall seconds to keep listening
+    after the drive ends; boot_offset_s: autopilot uptime when the simulator starts."""
 
     speed: float = 1.0
     deny_after_s: float = 1.0
     duration_s: float | None = None
     lockstep: bool = False
     gps1_type: int = 14
+    gps2_type: int | None = None
+    gnss_noise_m: float = 1.0
+    seed: int = 0
+    spoof_after_s: float | None = None
+    spoof_drift_mps: float = 0.0
+    spoof_jump_m: float = 0.0
+    spoof_bearing_deg: float = 90.0
+    home: tuple[float, float, float] | None = None
+    send_home: bool = True
     sysid: int = 1
     compid: int = 1
     wait_companion_s: float = 30.0
@@ -80,6 +99,23 @@ class SimOptions:
             raise ConfigError(f"--deny-after: {self.deny_after_s} must be >= 0 s")
         if self.duration_s is not None and self.duration_s <= 0:
             raise ConfigError(f"--duration: {self.duration_s} must be > 0 s")
+        if not 0.0 <= self.gnss_noise_m <= 100.0:
+            raise ConfigError(f"--gnss-noise: {self.gnss_noise_m} is out of range (0..100 m)")
+        if self.spoof_after_s is not None and self.spoof_after_s < 0:
+            raise ConfigError(f"--spoof-after: {self.spoof_after_s} must be >= 0 s")
+        if not (0.0 <= self.spoof_drift_mps <= 100.0 and 0.0 <= self.spoof_jump_m <= 100_000.0):
+            raise ConfigError("--spoof-drift / --spoof-jump: must be >= 0 (at most 100 m/s, 100 km)")
+        for name, value in (("--gps1-type", self.gps1_type), ("--gps2-type", self.gps2_type)):
+            if value is not None and not 0 <= value <= 30:
+                raise ConfigError(f"{name}: {value} is not a GPS type (0..30)")
+        if self.home is not None and not (-90.0 <= self.home[0] <= 90.0 and -180.0 <= self.home[1] <= 180.0):
+            raise ConfigError(f"--home: {self.home} is not LAT,LON,ALT in degrees and metres")
+
+    @property
+    def gps_types(self) -> tuple[int, int]:
+        """(GPS1_TYPE, GPS2_TYPE), GPS2_TYPE derived when not given: the other instance is the real receiver."""
+        gps2 = self.gps2_type if self.gps2_type is not None else (1 if self.gps1_type == GPS_TYPE_MAV else GPS_TYPE_MAV)
+        return self.gps1_type, gps2
 
 
 class Simulator:
@@ -97,7 +133,15 @@ class Simulator:
         self.drive = drive if isinstance(drive, SimDrive) else open_drive(Path(drive))
         self.connect = connect
         self.clock = SimClock(self.options.speed, self.options.boot_offset_s)
-        self.monitor = GpsInputMonitor()
+        o = self.options
+        types = o.gps_types
+        # ArduPilot's GPS_INPUT driver serves the type-14 instance (gps_id = instance - 1); none: all dropped
+        self.monitor = GpsInputMonitor(instance=types.index(GPS_TYPE_MAV) if GPS_TYPE_MAV in types else -1)
+        self.receiver = GnssReceiver(self.drive, o.gnss_noise_m, o.seed, o.deny_after_s, o.spoof_after_s,
+                                     o.spoof_drift_mps, o.spoof_jump_m, o.spoof_bearing_deg)
+        self.echo = EchoInstance()
+        d = self.drive
+        self.home = o.home if o.home is not None else (float(d.true_lat[0]), float(d.true_lon[0]), float(d.alt[0]))
         self.statustexts: list[tuple[float, int, str]] = []
         self.companion: tuple[int, int] | None = None
         self.play_start: float | None = None
@@ -126,7 +170,8 @@ class Simulator:
             raise TacoError(f"--connect {self.connect!r}: cannot open ({exc})") from None
         self._conn.mav.robust_parsing = True
         self._services = AutopilotServices(self._conn.mav, self.options.sysid, self.options.compid,
-                                           self.options.gps1_type, frozenset(DEFAULT_INTERVALS))
+                                           self.options.gps1_type, frozenset(DEFAULT_INTERVALS),
+                                           gps2_type=self.options.gps_types[1])
         self._threads = [threading.Thread(target=self._guard(self._receive), name="sim-recv", daemon=True),
                          threading.Thread(target=self._guard(self._play), name="sim-play", daemon=True)]
         for th in self._threads:
@@ -260,30 +305,50 @@ class Simulator:
                 log.debug("lockstep: no GPS_INPUT since %.2f s (clock %.2f s)", self.monitor.updates[-1].t, T)
 
     def _send_sample(self, mav: Any, i: int, T: float, due: dict[int, float]) -> None:
-        d = self.drive
-        for msg_id in (M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_GPS_RAW_INT,
+        requested = set()
+        while self.services.requested:  # MAV_CMD_REQUEST_MESSAGE: once, now (appended by the receiver thread)
+            requested.add(self.services.requested.pop(0))
+        for msg_id in (M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_HOME_POSITION,
+                       M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, M.MAVLINK_MSG_ID_GPS_RAW_INT, M.MAVLINK_MSG_ID_GPS2_RAW,
                        *DATA_STREAMS):
             interval = self._interval(msg_id)
-            if interval < 0 or T + 1e-9 < due[msg_id]:
+            if msg_id not in requested and (interval < 0 or T + 1e-9 < due[msg_id]):
                 continue
-            due[msg_id] = max(due[msg_id] + interval, T) if interval > 0 else T
-            if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
-                msg = encode.heartbeat(mav)
-            elif msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
-                msg = encode.system_time(mav, d.utc0 + float(d.t[i]), T)
-            elif msg_id == M.MAVLINK_MSG_ID_GPS_RAW_INT:
-                msg = encode.gps_raw_int(mav, d, i, T, fix=float(d.t[i]) < self.options.deny_after_s)
-            elif msg_id == M.MAVLINK_MSG_ID_RAW_IMU:
-                msg = encode.raw_imu(mav, d, i, T)
-            elif msg_id == M.MAVLINK_MSG_ID_SCALED_IMU:
-                msg = encode.scaled_imu(mav, d, i, T)
-            elif msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
-                msg = encode.highres_imu(mav, d, i, T)
-            elif msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
-                msg = encode.attitude(mav, d, i, T)
-            else:
-                msg = encode.simstate(mav, d, i)
-            self._send(msg)
+            if interval >= 0 and T + 1e-9 >= due[msg_id]:
+                due[msg_id] = max(due[msg_id] + interval, T) if interval > 0 else T
+            msg = self._message(mav, msg_id, i, T)
+            if msg is not None:
+                self._send(msg)
+
+    def _message(self, mav: Any, msg_id: int, i: int, T: float) -> Any:
+        """Message `msg_id` for drive sample i at autopilot time T (s); None when this autopilot has none."""
+        d = self.drive
+        if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
+            return encode.heartbeat(mav)
+        if msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
+            return encode.system_time(mav, d.utc0 + float(d.t[i]), T)
+        if msg_id in (M.MAVLINK_MSG_ID_HOME_POSITION, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN):
+            if not self.options.send_home:
+                return None
+            build = encode.home_position if msg_id == M.MAVLINK_MSG_ID_HOME_POSITION else encode.gps_global_origin
+            return build(mav, *self.home, T)
+        if msg_id in (M.MAVLINK_MSG_ID_GPS_RAW_INT, M.MAVLINK_MSG_ID_GPS2_RAW):
+            instance = 1 if msg_id == M.MAVLINK_MSG_ID_GPS_RAW_INT else 2
+            gps_type = self.options.gps_types[instance - 1]
+            if gps_type == 0 and instance == 2:
+                return None  # ArduPilot sends GPS2_RAW only when a second GPS is configured
+            if gps_type == GPS_TYPE_MAV:
+                return gps_message(mav, instance, T, self.echo.state())
+            return gps_message(mav, instance, T, self.receiver.state(i))
+        if msg_id == M.MAVLINK_MSG_ID_RAW_IMU:
+            return encode.raw_imu(mav, d, i, T)
+        if msg_id == M.MAVLINK_MSG_ID_SCALED_IMU:
+            return encode.scaled_imu(mav, d, i, T)
+        if msg_id == M.MAVLINK_MSG_ID_HIGHRES_IMU:
+            return encode.highres_imu(mav, d, i, T)
+        if msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
+            return encode.attitude(mav, d, i, T)
+        return encode.simstate(mav, d, i)
 
     # ------------------------------------------------------------------ receiving
     def _receive(self) -> None:
@@ -318,7 +383,8 @@ class Simulator:
             if self.play_start is None:
                 return  # before playback: no truth to score against
             with self._gps_event:
-                self.monitor.handle(msg, now)
+                if self.monitor.handle(msg, now) is not None:
+                    self.echo.on_gps_input(msg)  # the type-14 instance now reports it
                 self._gps_event.notify_all()
         elif kind == "STATUSTEXT":
             text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
@@ -328,13 +394,20 @@ class Simulator:
             self._send(reply)
 
     # ------------------------------------------------------------------ results
+    @property
+    def denied_from_s(self) -> float | None:
+        """Drive time (s) from which the real receiver is denied or spoofed; None when it never is."""
+        o = self.options
+        starts = [t for t in (o.deny_after_s, o.spoof_after_s) if t is not None and t < float(self.drive.t[-1])]
+        return float(min(starts)) if starts else None
+
     def results(self) -> dict[str, Any]:
         """The results.json document of what was played so far (see score.py for the fields)."""
         from taco_mav.sim.score import results_document, score_updates
 
         start = self.play_start if self.play_start is not None else self.clock.now()
         end = self.play_end if self.play_end is not None else self.clock.now()
-        seq = score_updates(self.drive, self.monitor.updates, start, end)
+        seq = score_updates(self.drive, self.monitor.updates, start, end, self.denied_from_s)
         seq.update(self.monitor.summary(end_t=end, start_t=start))
         seq.update(played_s=max(0.0, end - start), lockstep_timeouts=self.lockstep_timeouts,
                    statustext=[t for _, _, t in self.statustexts[-20:]],

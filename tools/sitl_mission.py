@@ -1,0 +1,419 @@
+#!/usr/bin/env python3
+"""Closed loop on a real autopilot: ArduPilot Rover SITL driven by taco-mav (issue 19).
+
+Starts `ardurover` (built by ../shared/tools/build_ardupilot_sitl.sh) on free TCP ports, the daemon
+(`taco-mav run`, a subprocess exactly as a user starts it) on SITL's SERIAL1 with a camera rendered from a
+synthetic world centred on SITL's home, uploads a square mission, arms, drives in AUTO and scores:
+- the EKF's position (GLOBAL_POSITION_INT) against SITL's truth (SIMSTATE), metres;
+- the rover's true speed (differentiated SIMSTATE) against WP_SPEED, m/s;
+- our own output (the GPS instance that is ours, GPS_RAW_INT or GPS2_RAW) against the truth, with the
+  horizontal accuracy we reported beside it (never again 1.2 m reported at 53 m).
+
+Set-ups: `solo` (GPS1_TYPE=14: taco-mav is the only GPS) and `handover` (SITL's GNSS is GPS1 and steers the rover,
+taco-mav is GPS2 with GPS2_TYPE=14; SIM_GPS1_ENABLE=0 part-way through the mission, so the EKF falls over to us).
+
+    python tools/sitl_mission.py --ardurover $ARDUROVER --out /tmp/sitl1 [--setup handover] [--estimator paper]
+
+Writes OUT/result.json (the figures), OUT/truth.csv, ekf_error.csv, ours_error.csv, OUT/daemon/ (tlog, events)
+and OUT/sitl/ (SITL's own files). Nothing here is product code: tests/test_sitl.py runs it when ARDUROVER is set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+import numpy as np  # noqa: E402
+from pymavlink import mavutil  # noqa: E402
+
+M = mavutil.mavlink
+HOME = (-35.363261, 149.165230, 584.0, 0.0)  # SITL's default (CMAC), lat, lon, alt m, heading deg
+ROVER_AUTO, ROVER_HOLD = 10, 4
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class MissionSpec:
+    """What to fly. side_m: square side, metres (first leg north from home); laps; wp_speed: WP_SPEED m/s;
+    setup: solo | handover; gnss_off_after_s: handover only, seconds after AUTO when SIM_GPS1_ENABLE=0;
+    timeout_s: wall seconds allowed for the mission after AUTO."""
+
+    side_m: float = 60.0
+    laps: int = 2
+    wp_speed: float = 3.0
+    setup: str = "solo"
+    gnss_off_after_s: float = 30.0
+    estimator: str = "taco+"
+    profile: str = "ardupilot_rover"
+    world_seed: int = 7
+    timeout_s: float = 300.0
+    ekf_wait_s: float = 150.0
+    home: tuple[float, float, float, float] = HOME
+    extra_params: dict[str, float] = field(default_factory=dict)
+    daemon_origin: bool = False  # give the daemon --origin (home) instead of letting it find one
+
+
+def free_instance() -> int:
+    """An -I instance whose TCP ports 5760+10I .. 5763+10I and UDP 5501+10I are free."""
+    for inst in range(0, 40):
+        ok = True
+        for port in range(5760 + 10 * inst, 5764 + 10 * inst):
+            with socket.socket() as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    ok = False
+                    break
+        if ok:
+            return inst
+    raise RuntimeError("no free SITL instance ports")
+
+
+def metres_between(lat0: float, lon0: float, lat1: float, lon1: float) -> tuple[float, float]:
+    """(east, north) metres from point 0 to point 1 (equirectangular; fine over a few hundred metres)."""
+    r = 6378137.0
+    return (math.radians(lon1 - lon0) * r * math.cos(math.radians(lat0)), math.radians(lat1 - lat0) * r)
+
+
+def offset(lat: float, lon: float, east: float, north: float) -> tuple[float, float]:
+    r = 6378137.0
+    return lat + math.degrees(north / r), lon + math.degrees(east / (r * math.cos(math.radians(lat))))
+
+
+class Gcs:
+    """The harness's own MAVLink link to SITL (SERIAL0), as a ground station."""
+
+    def __init__(self, port: int) -> None:
+        deadline = time.time() + 60
+        while True:
+            try:
+                self.m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=250, source_component=190,
+                                                    autoreconnect=False)
+                break
+            except OSError:
+                if time.time() > deadline:
+                    raise
+                time.sleep(0.5)
+        self.m.wait_heartbeat(timeout=60)
+        self.target = (self.m.target_system, M.MAV_COMP_ID_AUTOPILOT1)
+        self.log: list[tuple[float, Any]] = []
+        self.texts: list[tuple[float, int, str]] = []
+
+    def send_cmd(self, cmd: int, *p: float) -> None:
+        args = list(p) + [0.0] * (7 - len(p))
+        self.m.mav.command_long_send(*self.target, cmd, 0, *args)
+
+    def interval(self, msg_id: int, hz: float) -> None:
+        self.send_cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+
+    def set_param(self, name: str, value: float) -> None:
+        for _ in range(5):
+            self.m.mav.param_set_send(*self.target, name.encode(), float(value), M.MAV_PARAM_TYPE_REAL32)
+            got = self.m.recv_match(type="PARAM_VALUE", blocking=True, timeout=2)
+            while got is not None and got.param_id != name:
+                got = self.m.recv_match(type="PARAM_VALUE", blocking=True, timeout=2)
+            if got is not None and abs(got.param_value - value) < 1e-3 * max(1.0, abs(value)):
+                return
+        raise RuntimeError(f"SITL did not take {name}={value}")
+
+    def pump(self, seconds: float) -> list[Any]:
+        """Receive for `seconds` (wall), keeping every message with its wall time."""
+        out = []
+        end = time.time() + seconds
+        while time.time() < end:
+            msg = self.m.recv_match(blocking=True, timeout=max(0.0, end - time.time()))
+            if msg is None:
+                continue
+            now = time.time()
+            self.log.append((now, msg))
+            if msg.get_type() == "STATUSTEXT":
+                self.texts.append((now, msg.severity, msg.text))
+            out.append(msg)
+        return out
+
+    def upload_square(self, home: tuple[float, float, float, float], side: float, laps: int) -> int:
+        """`_upload_square`, retried: just after boot ArduPilot answers NO_SPACE until its storage is up."""
+        for attempt in range(20):
+            try:
+                return self._upload_square(home, side, laps)
+            except RuntimeError as e:
+                if attempt == 19 or "type : 4" not in str(e):
+                    raise
+                self.pump(2.0)
+        raise AssertionError("unreachable")
+
+    def _upload_square(self, home: tuple[float, float, float, float], side: float, laps: int) -> int:
+        """A square of `side` metres (N, E, S, W legs) from home, `laps` times, then HOLD at home; returns the
+        number of mission items (item 0 is home, as ArduPilot expects)."""
+        lat0, lon0, alt = home[0], home[1], 0.0
+        corners = [(0.0, side), (side, side), (side, 0.0), (0.0, 0.0)]
+        wps = [offset(lat0, lon0, e, n) for _ in range(laps) for e, n in corners]
+        items = [(lat0, lon0, M.MAV_CMD_NAV_WAYPOINT)] + [(la, lo, M.MAV_CMD_NAV_WAYPOINT) for la, lo in wps]
+        self.m.mav.mission_clear_all_send(*self.target)
+        time.sleep(0.5)
+        self.m.mav.mission_count_send(*self.target, len(items), 0)
+        sent: set[int] = set()
+        deadline = time.time() + 30
+        while time.time() < deadline:
+            msg = self.m.recv_match(type=["MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"], blocking=True,
+                                    timeout=5)
+            if msg is None:
+                continue
+            if msg.get_type() == "MISSION_ACK":
+                if msg.type != M.MAV_MISSION_ACCEPTED:
+                    raise RuntimeError(f"mission upload refused: {msg}")
+                if len(sent) == len(items):
+                    return len(items)
+                continue  # the answer to the clear
+            la, lo, cmd = items[msg.seq]
+            self.m.mav.mission_item_int_send(*self.target, msg.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, cmd,
+                                             0, 1, 0, 0, 0, 0, int(la * 1e7), int(lo * 1e7), alt, 0)
+            sent.add(msg.seq)
+        raise RuntimeError("mission upload timed out")
+
+
+def _params(spec: MissionSpec) -> dict[str, float]:
+    """SITL parameters of the set-up (written to a defaults file, so they hold from boot)."""
+    p: dict[str, float] = {"SERIAL1_PROTOCOL": 2, "SERIAL1_BAUD": 921, "WP_SPEED": spec.wp_speed,
+                           "CRUISE_SPEED": spec.wp_speed}
+    if spec.setup == "solo":
+        p.update({"GPS1_TYPE": 14, "GPS2_TYPE": 0, "GPS_AUTO_SWITCH": 0})
+    elif spec.setup == "handover":
+        p.update({"GPS1_TYPE": 1, "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 1, "SIM_GPS2_ENABLE": 0})
+    else:
+        raise ValueError(f"setup {spec.setup!r}: solo or handover")
+    p.update(spec.extra_params)
+    return p
+
+
+def build_world(out: Path, spec: MissionSpec) -> Path:
+    world = out / "world"
+    if not (world / "world.json").exists():
+        subprocess.run([sys.executable, "-m", "taco_mav.cli", "world", "-q", "--out", str(world), "--seed",
+                        str(spec.world_seed), "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}"],
+                       check=True)
+    return world
+
+
+def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | None = None) -> dict[str, Any]:
+    """Fly `spec` on SITL with taco-mav in the loop; returns the figures (also written to OUT/result.json)."""
+    out.mkdir(parents=True, exist_ok=True)
+    world = world or build_world(out, spec)
+    inst = free_instance()
+    sitl_dir = out / "sitl"
+    shutil.rmtree(sitl_dir, ignore_errors=True)
+    sitl_dir.mkdir()
+    defaults = ardurover.resolve().parents[3] / "Tools/autotest/default_params/rover.parm"
+    extra = sitl_dir / "taco.parm"
+    extra.write_text("".join(f"{k} {v}\n" for k, v in _params(spec).items()))
+    home = ",".join(str(v) for v in spec.home)
+    sitl = subprocess.Popen([str(ardurover), "--model", "rover", "--speedup", "1", "-I", str(inst), "-w", "--home", home,
+                             "--defaults", f"{defaults},{extra}"], cwd=sitl_dir, stdout=open(sitl_dir / "out.log", "w"),
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    daemon = None
+    try:
+        gcs = Gcs(5760 + 10 * inst)
+        daemon_cmd = [sys.executable, "-m", "taco_mav.cli", "run", "--profile", spec.profile, "--connect",
+                      f"tcp:127.0.0.1:{5762 + 10 * inst}", "--camera", f"world:{world}", "--log-dir",
+                      str(out / "daemon"), "--estimator", spec.estimator]
+        if spec.daemon_origin:
+            daemon_cmd.append(f"--origin={spec.home[0]},{spec.home[1]},{spec.home[2]}")
+        shutil.rmtree(out / "daemon", ignore_errors=True)
+        daemon = subprocess.Popen(daemon_cmd, stdout=open(out / "daemon.log", "w"), stderr=subprocess.STDOUT,
+                                  start_new_session=True)
+        for mid, hz in ((M.MAVLINK_MSG_ID_SIMSTATE, 10), (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 10),
+                        (M.MAVLINK_MSG_ID_GPS_RAW_INT, 5), (M.MAVLINK_MSG_ID_GPS2_RAW, 5),
+                        (M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, 2), (M.MAVLINK_MSG_ID_MISSION_CURRENT, 2),
+                        (M.MAVLINK_MSG_ID_VFR_HUD, 5)):
+            gcs.interval(mid, hz)
+        if spec.setup == "solo":  # no GNSS at all: the ground station sets the EKF origin, as a user would
+            _set_ekf_origin(gcs, spec.home)
+        n_items = gcs.upload_square(spec.home, spec.side_m, spec.laps)
+        t0 = time.time()
+        ekf_ok_at = _wait_ekf(gcs, spec.ekf_wait_s)
+        figures: dict[str, Any] = {"ekf_position_after_s": None if ekf_ok_at is None else ekf_ok_at - t0}
+        if ekf_ok_at is None:
+            figures["verdict"] = "ekf_never_ready"
+            return _finish(out, gcs, spec, figures, None)
+        armed_at = _arm(gcs)
+        gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_AUTO)
+        auto_t = time.time()
+        figures["armed_after_s"] = armed_at - t0
+        gnss_off_t = None
+        last_seq = n_items - 1
+        done = False
+        while time.time() - auto_t < spec.timeout_s and not done:
+            for msg in gcs.pump(0.5):
+                kind = msg.get_type()
+                if kind == "MISSION_ITEM_REACHED" and msg.seq >= last_seq:
+                    done = True
+            if spec.setup == "handover" and gnss_off_t is None and time.time() - auto_t >= spec.gnss_off_after_s:
+                gcs.set_param("SIM_GPS1_ENABLE", 0)
+                gnss_off_t = time.time()
+            if _runaway(gcs, spec):
+                figures["verdict"] = "runaway_stopped"
+                break
+        gcs.pump(2.0)
+        figures["mission_completed"] = done
+        figures["mission_s"] = time.time() - auto_t
+        figures["gnss_off_after_auto_s"] = None if gnss_off_t is None else gnss_off_t - auto_t
+        return _finish(out, gcs, spec, figures, auto_t)
+    finally:
+        for proc in (daemon, sitl):
+            if proc is not None and proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT if proc is daemon else signal.SIGTERM)
+                try:
+                    proc.wait(15)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _set_ekf_origin(gcs: Gcs, home: tuple[float, float, float, float], limit_s: float = 90.0) -> float:
+    """SET_GPS_GLOBAL_ORIGIN every 2 s until the autopilot reports GPS_GLOBAL_ORIGIN (its EKF takes it only
+    once it runs); returns the wall seconds it took."""
+    t0 = time.time()
+    while time.time() - t0 < limit_s:
+        gcs.m.mav.set_gps_global_origin_send(gcs.target[0], int(home[0] * 1e7), int(home[1] * 1e7), int(home[2] * 1e3),
+                                             int(time.time() * 1e6))
+        gcs.send_cmd(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+        if any(m.get_type() == "GPS_GLOBAL_ORIGIN" for m in gcs.pump(2.0)):
+            return time.time() - t0
+    raise RuntimeError("the autopilot never took the EKF origin (SET_GPS_GLOBAL_ORIGIN)")
+
+
+def _wait_ekf(gcs: Gcs, limit_s: float) -> float | None:
+    """Wall time at which the EKF reports an absolute horizontal position (EKF_STATUS_REPORT flags) and
+    GLOBAL_POSITION_INT is non-zero, or None after limit_s."""
+    end = time.time() + limit_s
+    while time.time() < end:
+        for msg in gcs.pump(0.5):
+            if msg.get_type() == "EKF_STATUS_REPORT" and msg.flags & M.EKF_POS_HORIZ_ABS and \
+                    not msg.flags & M.EKF_CONST_POS_MODE:
+                gcs.pump(5.0)  # settle
+                return time.time()
+    return None
+
+
+def _arm(gcs: Gcs) -> float:
+    for _ in range(30):
+        gcs.send_cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        for msg in gcs.pump(1.0):
+            if msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() == gcs.target[0] and \
+                    msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
+                return time.time()
+    raise RuntimeError("SITL refused to arm: " + "; ".join(t for _, _, t in gcs.texts[-5:]))
+
+
+def _runaway(gcs: Gcs, spec: MissionSpec) -> bool:
+    """Truth more than 3 side lengths from home: stop early (HOLD), the run has failed anyway."""
+    for _, msg in reversed(gcs.log[-50:]):
+        if msg.get_type() == "SIMSTATE":
+            e, n = metres_between(spec.home[0], spec.home[1], msg.lat * 1e-7, msg.lng * 1e-7)
+            if math.hypot(e, n) > 3 * spec.side_m:
+                gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_HOLD)
+                return True
+            return False
+    return False
+
+
+def _finish(out: Path, gcs: Gcs, spec: MissionSpec, figures: dict[str, Any], auto_t: float | None) -> dict[str, Any]:
+    figures.update(score(gcs.log, spec, auto_t, out))
+    figures["spec"] = asdict(spec)
+    figures["statustext"] = [t for _, _, t in gcs.texts if "taco" in t.lower() or "GPS" in t or "EKF" in t][-40:]
+    (out / "result.json").write_text(json.dumps(figures, indent=2, default=float))
+    return figures
+
+
+def score(log: list[tuple[float, Any]], spec: MissionSpec, auto_t: float | None, out: Path | None = None
+          ) -> dict[str, Any]:
+    """Figures from the GCS log: truth (SIMSTATE) at 10 Hz, the EKF (GLOBAL_POSITION_INT) and our instance's
+    report (GPS_RAW_INT in solo, GPS2_RAW in handover) each paired with the latest truth before it; with `out`,
+    truth.csv, ekf_error.csv and ours_error.csv go there (from AUTO on)."""
+    lat0, lon0 = spec.home[0], spec.home[1]
+    truth = [(t, *metres_between(lat0, lon0, m.lat * 1e-7, m.lng * 1e-7)) for t, m in log if m.get_type() == "SIMSTATE"]
+    if len(truth) < 10:
+        return {"error": "no SIMSTATE"}
+    T = np.array(truth)
+    ours_kind = "GPS_RAW_INT" if spec.setup == "solo" else "GPS2_RAW"
+
+    def paired(kind: str, lat: str, lon: str, scale: float) -> np.ndarray:
+        rows = []
+        for t, m in log:
+            if m.get_type() != kind or (auto_t is not None and t < auto_t):
+                continue
+            if kind != "GLOBAL_POSITION_INT" and m.fix_type < 3:
+                continue
+            i = int(np.searchsorted(T[:, 0], t)) - 1
+            if i < 0:
+                continue
+            e, n = metres_between(lat0, lon0, getattr(m, lat) * scale, getattr(m, lon) * scale)
+            acc = getattr(m, "h_acc", 0) * 1e-3 if kind != "GLOBAL_POSITION_INT" else 0.0
+            rows.append((t, math.hypot(e - T[i, 1], n - T[i, 2]), acc))
+        return np.array(rows).reshape(-1, 3)
+
+    ekf = paired("GLOBAL_POSITION_INT", "lat", "lon", 1e-7)
+    ours = paired(ours_kind, "lat", "lon", 1e-7)
+    live = T[T[:, 0] >= auto_t] if auto_t is not None else T
+    dt = np.diff(live[:, 0])
+    speed = np.hypot(np.diff(live[:, 1]), np.diff(live[:, 2])) / np.maximum(dt, 1e-3)
+    speed = speed[dt > 0.05]
+    # a 1 s median keeps SIMSTATE arrival jitter out of the speed
+    k = 10
+    smooth = np.array([np.median(speed[i:i + k]) for i in range(max(len(speed) - k, 0))]) if len(speed) > k else speed
+    res: dict[str, Any] = {
+        "ekf_rms_m": float(np.sqrt(np.mean(ekf[:, 1] ** 2))) if len(ekf) else None,
+        "ekf_max_m": float(ekf[:, 1].max()) if len(ekf) else None,
+        "true_speed_max_mps": float(smooth.max()) if len(smooth) else None,
+        "true_speed_limit_mps": 1.5 * spec.wp_speed,
+        "ours_reports": int(len(ours)),
+        "ours_rms_m": float(np.sqrt(np.mean(ours[:, 1] ** 2))) if len(ours) else None,
+        "ours_max_m": float(ours[:, 1].max()) if len(ours) else None,
+        # error over reported 1-sigma (h_acc); > 3 means we claimed far more than we had
+        "ours_error_over_hacc_max": float((ours[:, 1] / np.maximum(ours[:, 2], 0.1)).max()) if len(ours) else None,
+        "ours_hacc_median_m": float(np.median(ours[:, 2])) if len(ours) else None,
+    }
+    if out is not None:
+        np.savetxt(out / "truth.csv", T, fmt="%.3f", delimiter=",", header="wall_s,east_m,north_m")
+        np.savetxt(out / "ekf_error.csv", ekf[:, :2], fmt="%.3f", delimiter=",", header="wall_s,error_m")
+        np.savetxt(out / "ours_error.csv", ours, fmt="%.3f", delimiter=",", header="wall_s,error_m,h_acc_m")
+    return res
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ardurover", default=os.environ.get("ARDUROVER"), help="SITL binary (default $ARDUROVER)")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--setup", choices=("solo", "handover"), default="solo")
+    ap.add_argument("--estimator", choices=("paper", "taco+"), default="taco+")
+    ap.add_argument("--laps", type=int, default=2)
+    ap.add_argument("--side", type=float, default=60.0)
+    ap.add_argument("--wp-speed", type=float, default=3.0)
+    ap.add_argument("--gnss-off-after", type=float, default=30.0)
+    ap.add_argument("--timeout", type=float, default=300.0)
+    ap.add_argument("--daemon-origin", action="store_true", help="start the daemon with --origin (SITL's home)")
+    a = ap.parse_args()
+    if not a.ardurover or not Path(a.ardurover).exists():
+        print("sitl_mission: error: --ardurover (or $ARDUROVER) must name the SITL binary", file=sys.stderr)
+        return 2
+    spec = MissionSpec(side_m=a.side, laps=a.laps, wp_speed=a.wp_speed, setup=a.setup,
+                       gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
+                       daemon_origin=a.daemon_origin)
+    res = run_mission(Path(a.ardurover), Path(a.out), spec)
+    print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
