@@ -191,7 +191,7 @@ def _params(spec: MissionSpec) -> dict[str, float]:
     if spec.setup == "solo":
         p.update({"GPS1_TYPE": 14, "GPS2_TYPE": 0, "GPS_AUTO_SWITCH": 0})
     elif spec.setup == "handover":
-        p.update({"GPS1_TYPE": 1, "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 1, "SIM_GPS2_ENABLE": 0})
+        p.update({"GPS1_TYPE": 1, "GPS2_TYPE": 14, "GPS_AUTO_SWITCH": 4, "GPS_PRIMARY": 0})
     else:
         raise ValueError(f"setup {spec.setup!r}: solo or handover")
     p.update(spec.extra_params)
@@ -402,6 +402,7 @@ def main() -> int:
     ap.add_argument("--wp-speed", type=float, default=3.0)
     ap.add_argument("--gnss-off-after", type=float, default=30.0)
     ap.add_argument("--timeout", type=float, default=300.0)
+    ap.add_argument("--profile", help="daemon profile (default ardupilot_rover; handover: ardupilot_rover_gps2)")
     ap.add_argument("--daemon-origin", action="store_true", help="start the daemon with --origin (SITL's home)")
     a = ap.parse_args()
     if not a.ardurover or not Path(a.ardurover).exists():
@@ -409,7 +410,8 @@ def main() -> int:
         return 2
     spec = MissionSpec(side_m=a.side, laps=a.laps, wp_speed=a.wp_speed, setup=a.setup,
                        gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
-                       daemon_origin=a.daemon_origin)
+                       daemon_origin=a.daemon_origin,
+                       profile=a.profile or ("ardupilot_rover_gps2" if a.setup == "handover" else "ardupilot_rover"))
     res = run_mission(Path(a.ardurover), Path(a.out), spec)
     print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))
     return 0

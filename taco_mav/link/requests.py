@@ -38,18 +38,24 @@ class _Req:
     tries: int = 0
     acked: bool = False
     failed: bool = False
+    slower: int = 0  # times the rate was lowered after a refusal
 
 
 @dataclass
 class StreamRequester:
     """Ask for each (message name, rate Hz) with SET_MESSAGE_INTERVAL, retrying every `retry_s`; after `tries`
-    unacknowledged attempts (or a refusal) fall back to REQUEST_DATA_STREAM for that message's group."""
+    unacknowledged attempts (or a refusal) fall back to REQUEST_DATA_STREAM for that message's group. A
+    refusal is first answered by asking again at `slower_factor` times the rate, up to `slower_tries` times:
+    ArduPilot refuses intervals shorter than 1.25 scheduler periods ("too fast": 40 Hz at most on a 50 Hz
+    Rover), and an interval it accepts beats a data stream of unknown rate."""
 
     send: Callable[[Any], None]
     mav: Any
     rates: dict[str, float]
     retry_s: float = 1.0
     tries: int = 3
+    slower_factor: float = 0.8
+    slower_tries: int = 2
     _reqs: dict[int, _Req] = field(default_factory=dict)
     _next: float = 0.0
     fallback_streams: set[int] = field(default_factory=set)
@@ -100,6 +106,13 @@ class StreamRequester:
         if msg.result == m.MAV_RESULT_ACCEPTED:
             r.acked = True
             log.info("autopilot sends %s at %.0f Hz", r.name, r.rate_hz)
+        elif msg.result == m.MAV_RESULT_DENIED and r.slower < self.slower_tries and r.rate_hz > 1.0:
+            r.slower += 1
+            r.tries = 0
+            log.info("autopilot refused %s at %.0f Hz: asking for %.0f Hz", r.name, r.rate_hz,
+                     r.rate_hz * self.slower_factor)
+            r.rate_hz *= self.slower_factor
+            self._next = 0.0  # ask again at the next tick
         elif msg.result in (m.MAV_RESULT_DENIED, m.MAV_RESULT_UNSUPPORTED, m.MAV_RESULT_FAILED):
             self._fallback(r, target_system, target_component, f"refused (result {msg.result})")
 
