@@ -353,8 +353,8 @@ def score(log: list[tuple[float, Any]], spec: MissionSpec, auto_t: float | None,
         for t, m in log:
             if m.get_type() != kind or (auto_t is not None and t < auto_t):
                 continue
-            if kind != "GLOBAL_POSITION_INT" and m.fix_type < 3:
-                continue
+            if kind != "GLOBAL_POSITION_INT" and m.fix_type < 3 or m.lat == 0 and m.lon == 0:
+                continue  # no fix, or an EKF without an origin
             i = int(np.searchsorted(T[:, 0], t)) - 1
             if i < 0:
                 continue

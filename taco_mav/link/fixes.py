@@ -232,20 +232,29 @@ class FixPipeline:
     def _frame_fetcher(self, q: FixQuery) -> FetchFn | None:
         """A callable the worker runs to get the frame nearest the capture time (rendering happens there);
         the frame guard vets it (FrameRejected with the reason)."""
-        cam, gap = self.camera, self.opt.frame_max_gap_s
-        if cam is None:
+        if self.camera is None:
             if self.profile.matcher != "emulator":
                 return None
             return lambda: GroundFrame(np.zeros((0, 0, 3), np.uint8), q.capture_t, self.ground_camera)
-        guard = self.guard
+        return self.frame_fetcher(q.capture_t)
+
+    def frame_fetcher(self, capture_t: float, guard: FrameGuard | None = None) -> FetchFn | None:
+        """A callable (run in a worker thread) that returns the camera's frame nearest autopilot time
+        `capture_t` (s) as a GroundFrame stamped on the autopilot clock, vetted by `guard` (default the fix
+        pipeline's; another user of the camera keeps its own, so its frames do not look frozen to this one);
+        None without a camera or, for a companion-clock camera, before the clocks are mapped."""
+        cam, gap = self.camera, self.opt.frame_max_gap_s
+        if cam is None:
+            return None
+        guard = guard or self.guard
         assert guard is not None
         if cam.clock is ClockDomain.AUTOPILOT:
-            t_src, back = q.capture_t, 0.0
+            t_src, back = capture_t, 0.0
         else:
             off = self.clockmap.offset
             if off is None:
                 return None
-            t_src, back = q.capture_t - off, off
+            t_src, back = capture_t - off, off
 
         def fetch() -> GroundFrame:
             t_frame, image = guard.check(cam.frame_near(t_src, max(gap, STALE_LOOK_S)), t_src)

@@ -1,0 +1,110 @@
+"""Ground-plane motion between two camera frames (issue 19): speed from the camera as well as the IMU.
+
+Both frames are projected to the same heading-up bird's-eye view (`BevProjector`, the IPM the classical matcher
+uses); the second is first rotated about the vehicle by the compass's heading change, so what is left between
+the two views is the vehicle's translation, which phase correlation (cv2.phaseCorrelate) measures to a fraction
+of a BEV pixel. The static edge of the visible region would pull the correlation towards zero shift, so both
+views are high-passed and multiplied by an apodisation window that fades to zero inside the region's edge.
+
+Frames and units: BEV pixel (i, j) shows ground at forward = (v0 - j) m, left = (u0 - i) m (module ipm).
+When the vehicle moves forward by d metres, the ground in the second view moves down the image by d / m
+pixels; left by l metres moves it right by l / m pixels. Headings ENU radians (CCW), times seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.cvgl.ipm import BevProjector
+
+log = logging.getLogger(__name__)
+
+__all__ = ["GroundMotion", "Motion"]
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Vehicle translation from frame 0 to frame 1 in frame 0's body axes: d_fwd, d_left metres; response:
+    phase-correlation peak strength (0..1); sigma_m: 1-sigma of the translation, metres."""
+
+    d_fwd: float
+    d_left: float
+    response: float
+    sigma_m: float
+
+
+class GroundMotion:
+    """Measures vehicle translation between two frames of `camera` over flat ground.
+
+    m_per_px: BEV resolution; band_m: the (near, far) forward distances, metres, of the patch of frame 0 that is
+    looked for in frame 1 (ground the camera resolves well); half_width_m: the patch's half width; max_shift_m:
+    the largest forward motion looked for (backwards: a quarter of it); min_response: a weaker normalised
+    correlation peak (texture-less ground, a blurred or occluded view) gives None.
+    """
+
+    def __init__(self, camera: GroundCamera, m_per_px: float = 0.05, band_m: tuple[float, float] = (6.0, 9.0),
+                 half_width_m: float = 1.5, max_shift_m: float = 3.0, min_response: float = 0.5) -> None:
+        self.m_per_px = m_per_px
+        far = band_m[1] + 1.0
+        n = int(round(far / m_per_px))
+        width = int(round(2.0 * (half_width_m + max_shift_m / 2.0 + 1.0) / m_per_px)) | 1
+        self.bev = BevProjector(camera, (width, n), m_per_px, max_range_m=far * 1.5)
+        u0, v0 = self.bev.vehicle_px
+        self.rows = (int(v0 - band_m[1] / m_per_px), int(v0 - band_m[0] / m_per_px))  # template rows [a, b)
+        hw = int(round(half_width_m / m_per_px))
+        self.cols = (int(round(u0)) - hw, int(round(u0)) + hw + 1)
+        self.down = int(round(max_shift_m / m_per_px))  # forward motion moves the ground down the view
+        self.up = max(int(round(0.25 * max_shift_m / m_per_px)), 2)
+        self.side = int(round((max_shift_m / 2.0) / m_per_px))
+        a, b = self.rows
+        if a - self.up < 0 or b + self.down > self.bev.height or not self.bev.mask[a:b, self.cols[0]:self.cols[1]].all():
+            raise ValueError(f"ground motion: the camera does not see the ground {band_m[0]}-{band_m[1]} m ahead, "
+                             f"+-{half_width_m} m wide (mount height / pitch / intrinsics?)")
+        if not self.bev.mask[a:b + self.down, self.cols[0] - self.side:self.cols[1] + self.side].all():
+            log.debug("ground motion: part of the search region is outside the view; shifts there score low")
+        self.min_response = min_response
+
+    def _prepare(self, image: np.ndarray, rotate_rad: float = 0.0) -> np.ndarray:
+        gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        bev, _ = self.bev.project(gray)
+        if rotate_rad:
+            # the view turns with the vehicle: a CCW turn by dtheta turns the ground CW in the view; turn it back
+            u0, v0 = self.bev.vehicle_px
+            R = cv2.getRotationMatrix2D((u0, v0), math.degrees(rotate_rad), 1.0)
+            bev = cv2.warpAffine(bev, R, (bev.shape[1], bev.shape[0]), flags=cv2.INTER_LINEAR)
+        return (bev - cv2.GaussianBlur(bev, (0, 0), 8.0)).astype(np.float32)  # local contrast: lighting drops out
+
+    def measure(self, image0: np.ndarray, image1: np.ndarray, dtheta: float = 0.0) -> Motion | None:
+        """Translation from frame 0 to frame 1 (camera images of this camera's size); dtheta: heading change
+        between them, ENU rad (the compass's). None when the correlation peak is weak, at the edge of the
+        search or not unique."""
+        b0 = self._prepare(image0)
+        b1 = self._prepare(image1, dtheta)
+        (a, b), (c0, c1) = self.rows, self.cols
+        tpl = b0[a:b, c0:c1]
+        if float(tpl.std()) < 1.0:
+            return None
+        region = b1[a - self.up:b + self.down, c0 - self.side:c1 + self.side]
+        score = cv2.matchTemplate(region, tpl, cv2.TM_CCOEFF_NORMED)
+        _, peak, _, (x, y) = cv2.minMaxLoc(score)
+        if not math.isfinite(peak) or peak < self.min_response:
+            return None
+        if not (0 < y < score.shape[0] - 1 and 0 < x < score.shape[1] - 1):
+            return None  # at the edge of the search: the motion may be larger than looked for
+        dy = y + _vertex(score[y - 1, x], score[y, x], score[y + 1, x]) - self.up
+        dx = x + _vertex(score[y, x - 1], score[y, x], score[y, x + 1]) - self.side
+        d_fwd, d_left = dy * self.m_per_px, dx * self.m_per_px
+        sigma = self.m_per_px * (0.2 + 0.5 * (1.0 - peak))  # sub-pixel at a clean peak, a few pixels at a poor one
+        return Motion(float(d_fwd), float(d_left), float(peak), float(sigma))
+
+
+def _vertex(left: float, mid: float, right: float) -> float:
+    """Offset of a parabola's vertex through three equally spaced samples, in samples (within +-0.5)."""
+    den = left - 2.0 * mid + right
+    return 0.0 if den >= 0.0 else float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))

@@ -1,0 +1,58 @@
+"""Vehicle translation between two rendered camera frames (cvgl/ground_motion.py): the real renderer and
+OpenCV's phase correlation on a textured flat world, straight and turning, and refusal of blank ground."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from rasterio.transform import from_origin
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.config import CameraConfig
+from taco_mav.cvgl.ground_motion import GroundMotion
+from taco_mav.datasets.synthetic.render import GroundRenderer
+
+E0, N0, RES = 600_000.0, 5_400_000.0, 0.1
+
+
+def _renderer(seed: int = 0, size: int = 2000, blank: bool = False) -> tuple[GroundRenderer, GroundCamera]:
+    rng = np.random.default_rng(seed)
+    tex = rng.integers(0, 255, (size // 8, size // 8, 3), dtype=np.uint8)
+    mosaic = cv2.resize(tex, (size, size), interpolation=cv2.INTER_CUBIC)  # blobs of ~0.8 m, like asphalt patches
+    mosaic = cv2.GaussianBlur(mosaic, (0, 0), 1.0)
+    if blank:
+        mosaic[:] = 90
+    cam = GroundCamera.from_config(CameraConfig(width_px=640, height_px=360, fx=450.0, fy=450.0, cx=320.0, cy=180.0,
+                                                mount_height_m=1.0, pitch_rad=0.2))
+    return GroundRenderer(mosaic, from_origin(E0, N0 + size * RES, RES, RES), cam, levels=3), cam
+
+
+@pytest.mark.parametrize("d_fwd,d_left,dtheta", [(0.8, 0.0, 0.0), (2.0, 0.1, 0.0), (1.2, 0.0, 0.06),
+                                                 (0.3, -0.05, -0.03)])
+def test_translation_between_rendered_frames(d_fwd: float, d_left: float, dtheta: float) -> None:
+    r, cam = _renderer()
+    gm = GroundMotion(cam)
+    th = 0.7
+    E, N = E0 + 100.0, N0 + 100.0
+    c, s = math.cos(th), math.sin(th)
+    f0 = r.render((E, N, th))
+    f1 = r.render((E + c * d_fwd - s * d_left, N + s * d_fwd + c * d_left, th + dtheta))
+    m = gm.measure(f0, f1, dtheta)
+    assert m is not None
+    assert abs(m.d_fwd - d_fwd) < 0.03 and abs(m.d_left - d_left) < 0.05, m
+    assert m.sigma_m < 0.05 and m.response > 0.1
+
+
+def test_standing_still_measures_zero_and_blank_ground_is_refused() -> None:
+    r, cam = _renderer()
+    gm = GroundMotion(cam)
+    f0 = r.render((E0 + 100.0, N0 + 100.0, 0.0))
+    m = gm.measure(f0, f0.copy())
+    assert m is not None and abs(m.d_fwd) < 0.01 and abs(m.d_left) < 0.01
+    rb, camb = _renderer(blank=True)
+    gb = GroundMotion(camb)
+    fb = rb.render((E0 + 100.0, N0 + 100.0, 0.0))
+    assert gb.measure(fb, rb.render((E0 + 101.0, N0 + 100.0, 0.0))) is None
