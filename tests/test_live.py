@@ -21,14 +21,18 @@ DRIVE_0005 = ("2011_09_26", "2011_09_26_drive_0005_sync")
 
 def run_live(drive: Path, profile: str, *, speed: float, camera: str | None = None, matcher: str | None = None,
              lockstep: bool = False, duration_s: float | None = None, latency_s: float = 0.0,
-             log_dir: Path | None = None, estimator: str = "paper") -> tuple[dict[str, Any], dict[str, Any]]:
-    """Play `drive` to an in-process daemon; returns (the drive's results.json entry, the daemon summary)."""
+             log_dir: Path | None = None, estimator: str = "paper", overrides: dict[str, Any] | None = None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Play `drive` to an in-process daemon; returns (the drive's results.json entry, the daemon summary).
+    overrides: dotted profile keys replaced (e.g. {"plus.camera_speed": False})."""
     port = free_udp_port()
     sim = Simulator(drive, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=lockstep, duration_s=duration_s,
                     wait_companion_s=10.0, drain_s=0.3)
     prof = load_profile(profile)
     if matcher is not None:
         prof = replace_in(prof, "matcher", matcher)
+    for key, value in (overrides or {}).items():
+        prof = replace_in(prof, key, value)
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=camera, matcher_latency_s=latency_s,
                                         log_dir=log_dir, estimator=Estimator(estimator)),
                     clock=sim.clock, wall_clock=sim.utc_now)
@@ -68,6 +72,21 @@ def test_live_synthetic_classical(small_world: Path) -> None:
     assert seq["ate_m"] < 3.0 and seq["ate_unaligned_m"] < 3.0
     assert seq["length_km"] > 0.15
     assert summary["fixes"].get("accepted", 0) >= 5
+
+
+def test_live_taco_plus_camera_speed(small_world: Path) -> None:
+    """taco+ with the camera's ground-plane motion as a speed measurement (issue 19) through the daemon:
+    measurements arrive at ~2 Hz of autopilot time and are used; the figures with and without it."""
+    seq, summary = run_live(small_world, "synthetic", speed=5.0, camera=f"world:{small_world}", duration_s=40.0,
+                            lockstep=True, estimator="taco+")
+    off, off_summary = run_live(small_world, "synthetic", speed=5.0, camera=f"world:{small_world}", duration_s=40.0,
+                                lockstep=True, estimator="taco+", overrides={"plus.camera_speed": False})
+    assert_autopilot_accepts_rate(seq)
+    motion = summary["camera_motion"]
+    assert motion["measured"] >= 0.8 * 40.0 / 0.5 * 0.9, motion  # ~2 Hz over the 40 s drive
+    assert off_summary["camera_motion"] is None
+    assert seq["ate_m"] < 1.5 and off["ate_m"] < 1.5
+    assert seq["ate_m"] <= off["ate_m"] + 0.2, (seq["ate_m"], off["ate_m"])
 
 
 def test_live_kitti_emulator(kitti_root: Path) -> None:

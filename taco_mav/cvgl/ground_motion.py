@@ -43,14 +43,20 @@ class GroundMotion:
     """Measures vehicle translation between two frames of `camera` over flat ground.
 
     m_per_px: BEV resolution; band_m: the (near, far) forward distances, metres, of the patch of frame 0 that is
-    looked for in frame 1 (ground the camera resolves well); half_width_m: the patch's half width; max_shift_m:
-    the largest forward motion looked for (backwards: a quarter of it); min_response: a weaker normalised
+    looked for in frame 1 (default: a `band_depth_m` deep band starting `max_shift_m` beyond the nearest ground
+    the camera sees across the whole search width); half_width_m: the patch's half width; max_shift_m: the
+    largest forward motion looked for (backwards: a quarter of it); min_response: a weaker normalised
     correlation peak (texture-less ground, a blurred or occluded view) gives None.
     """
 
-    def __init__(self, camera: GroundCamera, m_per_px: float = 0.05, band_m: tuple[float, float] = (6.0, 9.0),
-                 half_width_m: float = 1.5, max_shift_m: float = 3.0, min_response: float = 0.5) -> None:
-        self.m_per_px = m_per_px
+    def __init__(self, camera: GroundCamera, m_per_px: float = 0.05, band_m: tuple[float, float] | None = None,
+                 half_width_m: float = 1.5, max_shift_m: float = 3.0, min_response: float = 0.5,
+                 band_depth_m: float = 3.0) -> None:
+        self.m_per_px, self.max_shift_m = m_per_px, max_shift_m
+        if band_m is None:
+            near = nearest_ground_m(camera, half_width_m + max_shift_m / 2.0)
+            band_m = (near + max_shift_m + 0.2, near + max_shift_m + 0.2 + band_depth_m)
+        self.band_m = band_m
         far = band_m[1] + 1.0
         n = int(round(far / m_per_px))
         width = int(round(2.0 * (half_width_m + max_shift_m / 2.0 + 1.0) / m_per_px)) | 1
@@ -102,6 +108,18 @@ class GroundMotion:
         d_fwd, d_left = dy * self.m_per_px, dx * self.m_per_px
         sigma = self.m_per_px * (0.2 + 0.5 * (1.0 - peak))  # sub-pixel at a clean peak, a few pixels at a poor one
         return Motion(float(d_fwd), float(d_left), float(peak), float(sigma))
+
+
+def nearest_ground_m(camera: GroundCamera, half_width_m: float, step_m: float = 0.1, limit_m: float = 60.0) -> float:
+    """The nearest forward distance, metres, at which the camera sees the ground across +-half_width_m."""
+    G = camera.ground_to_image
+    for f in np.arange(step_m, limit_m, step_m):
+        pts = np.array([[f, -half_width_m, 1.0], [f, half_width_m, 1.0]]) @ G.T
+        if np.all(pts[:, 2] > 1e-6):
+            u, v = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
+            if np.all((u >= 0) & (u <= camera.width - 1) & (v >= 0) & (v <= camera.height - 1)):
+                return float(f)
+    raise ValueError(f"ground motion: the camera sees no ground +-{half_width_m} m wide within {limit_m} m")
 
 
 def _vertex(left: float, mid: float, right: float) -> float:

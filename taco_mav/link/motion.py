@@ -1,0 +1,162 @@
+"""The daemon's camera-speed pipeline (issue 19): ground-plane motion between two camera frames a fraction of
+a second apart (`cvgl.ground_motion.GroundMotion`) as a speed measurement for taco+.
+
+Threads: `tick` runs on the daemon loop thread (it asks for a measurement every `interval_s` of autopilot time
+and hands finished ones to the Localiser); one worker thread fetches the two frames (rendering a world camera
+happens there), warps them and correlates. Times are autopilot seconds; the heading change between the two
+frames comes from the Localiser's compass headings, recorded at every loop step (`on_heading`, ENU rad).
+
+    motion = MotionPipeline(fixes)   # after fixes.open(), with a camera
+    motion.start(); ...; motion.tick(loc) every loop step; ...; motion.stop()
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+import queue
+import threading
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from taco_mav.camera import FrameGuard, FrameRejected
+from taco_mav.cvgl.ground_motion import GroundMotion
+
+if TYPE_CHECKING:
+    from taco_mav.link.fixes import FixPipeline
+
+log = logging.getLogger(__name__)
+
+MIN_GAP_S = 0.05  # the shortest time between the two frames (a 20 Hz camera's period), s
+
+
+@dataclass(frozen=True)
+class MotionResult:
+    """One measurement: frame times t0, t1 (autopilot s), translation in frame 0's body axes (metres) and its
+    1-sigma (metres), the correlation peak."""
+
+    t0: float
+    t1: float
+    d_fwd: float
+    d_left: float
+    sigma_m: float
+    response: float
+
+
+class MotionPipeline:
+    """fixes: the fix pipeline (its camera and clock mapping); interval_s: autopilot seconds between
+    measurements; gap_s: the longest time between the two frames (shorter at speed, so the ground moves at most
+    half the largest shift looked for); lag_s: how far behind the newest IMU time the second
+    frame is asked for (a world camera has poses up to the last SIMSTATE, a live one frames up to now)."""
+
+    def __init__(self, fixes: FixPipeline, interval_s: float = 0.5, gap_s: float = 0.3, lag_s: float = 0.1) -> None:
+        self.fixes = fixes
+        self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
+        cam = fixes.ground_camera
+        self.motion = GroundMotion(cam)
+        self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
+                                check_frozen=False)
+        self.counts: Counter[str] = Counter()
+        self._headings: deque[tuple[float, float]] = deque(maxlen=4000)
+        self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)
+        self._done: queue.Queue[MotionResult] = queue.Queue()
+        self._lock = threading.Lock()
+        self._next = -math.inf
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="taco-motion", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            try:
+                self._jobs.put_nowait(None)
+            except queue.Full:
+                pass
+            self._thread.join(1.0)
+
+    def on_heading(self, t: float, theta: float) -> None:
+        """The compass heading (ENU rad) at autopilot time t (s), for the heading change between frames."""
+        with self._lock:
+            if self._headings and t <= self._headings[-1][0]:
+                if t < self._headings[-1][0] - 1.0:
+                    self._headings.clear()  # the autopilot clock went back (reboot)
+                else:
+                    return
+            self._headings.append((t, theta))
+
+    def _heading_at(self, t: float) -> float | None:
+        with self._lock:
+            h = self._headings
+            i = bisect.bisect_left(h, (t, -math.inf))
+            if not h or i == 0 and h[0][0] - t > 0.1 or i == len(h) and t - h[-1][0] > 0.1:
+                return None
+            a, b = h[max(i - 1, 0)], h[min(i, len(h) - 1)]
+        if b[0] == a[0]:
+            return a[1]
+        w = (t - a[0]) / (b[0] - a[0])
+        return a[1] + w * math.remainder(b[1] - a[1], 2 * math.pi)
+
+    def tick(self, loc: Any) -> None:
+        """On the loop thread: ask for a new measurement when one is due; hand finished ones to the Localiser
+        (`add_ground_motion`, taco+ only)."""
+        if loc is None:
+            return
+        self.on_heading(loc.t, float(loc.pre.theta))
+        add = getattr(loc, "add_ground_motion", None)
+        while True:
+            try:
+                r = self._done.get_nowait()
+            except queue.Empty:
+                break
+            if add is not None:
+                add(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
+        if add is None or loc.t < self._next:
+            return
+        self._next = loc.t + self.interval_s
+        t1 = loc.t - self.lag_s
+        # at most half the largest shift looked for between the two frames
+        gap = min(self.gap_s, max(MIN_GAP_S, 0.5 * self.motion.max_shift_m / max(abs(float(loc.pre.speed)), 0.1)))
+        try:
+            self._jobs.put_nowait((t1 - gap, t1))
+        except queue.Full:
+            self.counts["busy"] += 1
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            try:
+                r = self._measure(*job)
+            except FrameRejected as e:
+                self.counts[e.reason] += 1
+                continue
+            except Exception:  # noqa: BLE001 - a failed measurement must never stop the pipeline
+                log.exception("camera motion")
+                self.counts["error"] += 1
+                continue
+            if isinstance(r, str):
+                self.counts[r] += 1
+            else:
+                self.counts["measured"] += 1
+                self._done.put(r)
+
+    def _measure(self, t0: float, t1: float) -> MotionResult | str:
+        """The measurement between the frames nearest t0 and t1, or why there is none."""
+        f0, f1 = self.fixes.frame_fetcher(t0, self.guard), self.fixes.frame_fetcher(t1, self.guard)
+        if f0 is None or f1 is None:
+            return "no_camera"
+        a, b = f0(), f1()
+        if b.t - a.t < 0.5 * MIN_GAP_S:
+            return "same_frame"
+        h0, h1 = self._heading_at(a.t), self._heading_at(b.t)
+        if h0 is None or h1 is None:
+            return "no_heading"
+        m = self.motion.measure(a.image, b.image, math.remainder(h1 - h0, 2 * math.pi))
+        if m is None:
+            return "weak"
+        return MotionResult(a.t, b.t, m.d_fwd, m.d_left, m.sigma_m, m.response)

@@ -1,0 +1,69 @@
+"""taco+ with the camera's ground-plane motion as a speed measurement (issue 19): on a SITL-like drive whose
+IMU cannot tell the cruise from a stop, and on the rover profile's fast-drifting speed between fixes."""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from helpers import simulate
+from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.params import LocaliserParams
+from taco_mav.core.plus import PlusParams
+from test_imu_check import ROVER, _sitl_like
+
+
+def _camera(drive, t0: float, t1: float, rng, sigma: float = 0.02):
+    """The translation a camera would measure between t0 and t1: truth in frame 0's axes plus noise."""
+    x0, y0, th0 = drive.pose_at(t0)
+    x1, y1, _ = drive.pose_at(t1)
+    c, s = math.cos(th0), math.sin(th0)
+    dx, dy = x1 - x0, y1 - y0
+    return c * dx + s * dy + rng.normal(0, sigma), -s * dx + c * dy + rng.normal(0, sigma), sigma
+
+
+def _run(drive, params, camera: bool, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    loc = make_localiser(params, 0.0, heading=float(drive.theta[0]), speed=float(drive.speed[0]))
+    err, speed, outcomes = [], [], []
+    next_t = 0.5
+    for i, s in enumerate(drive.samples):
+        loc.add_imu(s)
+        if camera and s.t >= next_t:
+            next_t += 0.5
+            t1 = s.t - 0.1
+            outcomes.append(loc.add_ground_motion(t1 - 0.3, t1, *_camera(drive, t1 - 0.3, t1, rng)))
+        if i % 5 == 0:
+            est = loc.estimate()
+            err.append(float(np.linalg.norm(est.xy - np.array(drive.pose_at(s.t)[:2]))))
+            speed.append(est.speed)
+    return loc, np.array(err), np.array(speed), outcomes
+
+
+def test_camera_speed_keeps_a_smooth_cruise_that_the_imu_takes_for_a_stop():
+    d = _sitl_like()
+    _, err0, speed0, _ = _run(d, ROVER, camera=False)
+    loc, err, speed, outcomes = _run(d, ROVER, camera=True)
+    t = np.arange(len(speed)) * 0.1
+    cruise = (t > 20) & (t < 50)
+    assert speed0[cruise].min() < 0.5  # without the camera the ZUPT pins the cruise (no fixes, no command)
+    assert np.abs(speed[cruise] - 3.0).max() < 0.15
+    assert err.max() < 3.0 < err0.max()
+    assert outcomes.count("used") > 0.9 * len(outcomes)
+    assert loc.estimate().extra["stationary"] is True  # the real stop at the end is still taken
+
+
+def test_camera_speed_bounds_the_speed_drift_of_a_noisy_imu():
+    # a MEMS IMU with a 0.1 m/s^2 forward bias, 8 m/s with gentle speed changes, no fixes for 60 s
+    d = simulate(lambda t: 8.0 + 1.5 * math.sin(t / 6.0), lambda t: 0.05 * math.sin(t / 9.0), 60.0, rate_hz=50.0,
+                 accel_noise=0.05, gyro_noise=0.001, compass_noise=0.002, seed=9)
+    d = dataclasses.replace(d, samples=[dataclasses.replace(s, accel_frd=(s.accel_frd[0] + 0.1, *s.accel_frd[1:]))
+                                        for s in d.samples])
+    params = LocaliserParams(plus=PlusParams(q_speed_mps=0.5, trigger_sigma_m=math.inf, trigger_time_s=math.inf))
+    _, err0, _, _ = _run(d, params, camera=False)
+    loc, err, speed, _ = _run(d, params, camera=True)
+    t = np.arange(len(speed)) * 0.1
+    true = np.interp(t, d.t, d.speed)
+    assert np.abs(speed[t > 5] - true[t > 5]).max() < 0.3
+    assert err[-1] < 0.15 * err0[-1]  # along-track drift over 60 s without fixes
+    assert 0.03 < float(loc.ukf.x[4]) < 0.15  # the accelerometer bias (0.1) partly learnt from the camera speed
