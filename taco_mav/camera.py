@@ -12,7 +12,10 @@ a video file, "rtsp://...", or a GStreamer pipeline (contains "!").
 
 `FrameGuard` vets what a source returns before it reaches a matcher: missing, stale (frame time far from the
 capture time), corrupt (unreadable file), wrong shape, blank (uniform: lens cap, dead sensor) and frozen
-(bit-identical to the previous frame at another time) frames are rejected with `FrameRejected(reason)`.
+(bit-identical to the previous frame at another time) frames are rejected with `FrameRejected(reason)`. With a
+`FrameRectifier` it also undistorts frames and rescales frames of another size with the model's aspect (the one
+place frames are rectified, `taco_mav.camera_calibration`), refuses a source of another aspect at start-up
+(`check_source`), and may watch the horizon against the profile's pitch (`taco_mav.camera_horizon`).
 """
 
 from __future__ import annotations
@@ -32,7 +35,9 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from taco_mav.camera_calibration import FrameRectifier, LensCalibration
 from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera_horizon import HorizonCheck, HorizonWarning
 from taco_mav.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)
@@ -72,6 +77,10 @@ class CameraSource(Protocol):
 
     def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None: ...
 
+    def frame_size(self) -> tuple[int, int] | None:
+        """(width, height) px of the frames, when known before the first frame (after `start`)."""
+        ...
+
 
 class VideoSource:
     """OpenCV VideoCapture in a thread; the last `ring` frames are kept with their grab time (companion clock).
@@ -91,6 +100,7 @@ class VideoSource:
         self.is_file = Path(spec).is_file()
         self.grabbed = 0
         self.failures = 0
+        self._size: tuple[int, int] | None = None
 
     def _open(self) -> cv2.VideoCapture:
         if self.spec.isdigit():
@@ -104,7 +114,12 @@ class VideoSource:
         if not cap.isOpened():
             raise ConfigError(f"--camera {self.spec!r}: OpenCV cannot open it")
         self._cap = cap
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH) or 0), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)
+        self._size = (w, h) if w > 0 and h > 0 else None  # some backends tell only after the first frame
         self._thread.start()
+
+    def frame_size(self) -> tuple[int, int] | None:
+        return self._size
 
     def _run(self) -> None:
         cap = self._cap
@@ -172,6 +187,11 @@ class FolderSource:
             raise DataError(f"{folder}: {len(self.paths)} images but {len(ns)} timestamps")
         self.times = list((ns - ns[0]) * 1e-9 + offset_s)
 
+    def frame_size(self) -> tuple[int, int] | None:
+        """The first image's size (None when it is unreadable)."""
+        bgr = cv2.imread(str(self.paths[0]), cv2.IMREAD_COLOR) if self.paths else None
+        return None if bgr is None else (bgr.shape[1], bgr.shape[0])
+
     def start(self) -> None:
         pass
 
@@ -207,16 +227,18 @@ def world_mosaic(world_dir: Path) -> Path:
 class WorldSource:
     """Renders the synthetic world's ground view at the simulator's true pose (simulation only). Poses come in
     through `feed_pose` (autopilot time s, lat/lon degrees, NED yaw rad, true north); a frame is rendered only
-    when asked for, at the stored pose nearest the requested time."""
+    when asked for, at the stored pose nearest the requested time. With `lens` the frames are drawn through it
+    (its size and distortion; `camera` gives the mount height and pitch), as a real calibrated camera's."""
 
     clock = ClockDomain.AUTOPILOT
     needs_pose = True
     noiseless = True
 
-    def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000) -> None:
+    def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000,
+                 lens: LensCalibration | None = None) -> None:
         import rasterio
 
-        from taco_mav.datasets.synthetic.render import GroundRenderer
+        from taco_mav.datasets.synthetic.render import GroundRenderer, LensRenderer
         from taco_mav.geo import UtmProjector
 
         self.mosaic_path = world_mosaic(Path(world_dir))
@@ -224,7 +246,11 @@ class WorldSource:
             bands = ds.read()
             transform, epsg = ds.transform, ds.crs.to_epsg()
         rgb = np.repeat(bands[:1], 3, axis=0) if bands.shape[0] < 3 else bands[:3]
-        self.renderer = GroundRenderer(np.ascontiguousarray(np.transpose(rgb, (1, 2, 0))), transform, camera)
+        mosaic = np.ascontiguousarray(np.transpose(rgb, (1, 2, 0)))
+        self.renderer: GroundRenderer | LensRenderer = (
+            GroundRenderer(mosaic, transform, camera) if lens is None
+            else LensRenderer(mosaic, transform, lens, camera.mount_height_m, camera.pitch_rad))
+        self._size = (camera.width, camera.height) if lens is None else (lens.width, lens.height)
         self.projector = UtmProjector(int(epsg))
         self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=ring)
         self._lock = threading.Lock()
@@ -236,6 +262,9 @@ class WorldSource:
             if self._poses and t < self._poses[-1][0]:
                 self._poses.clear()  # the autopilot clock went back (reboot)
             self._poses.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
+
+    def frame_size(self) -> tuple[int, int] | None:
+        return self._size
 
     def start(self) -> None:
         pass
@@ -254,42 +283,75 @@ class WorldSource:
 
 
 class FrameGuard:
-    """Vets frames for one camera (used from one thread: the matcher worker). width, height: the profile's
+    """Vets frames for one camera (used from one thread: the matcher worker). width, height: the camera model's
     image size, px; max_gap_s: largest |frame time - capture time| accepted, s; min_std: a frame whose grey
     levels vary less than this (std over a subsample, 0-255) is blank; check_frozen: reject a frame identical
-    (CRC-32 of all pixels) to the previous one but stamped at another time (False for noiseless sources)."""
+    (CRC-32 of all pixels) to the previous one but stamped at another time (False for noiseless sources);
+    rectifier: undistorts and rescales raw frames to the model (None: frames must be the model's size already);
+    horizon: checks each passed frame's horizon against the profile's pitch (warnings: `take_warnings`)."""
 
     def __init__(self, width: int, height: int, max_gap_s: float, min_std: float = 2.0,
-                 check_frozen: bool = True) -> None:
+                 check_frozen: bool = True, rectifier: FrameRectifier | None = None,
+                 horizon: HorizonCheck | None = None) -> None:
         self.width, self.height, self.max_gap_s = int(width), int(height), float(max_gap_s)
         self.min_std, self.check_frozen = float(min_std), check_frozen
+        self.rectifier, self.horizon = rectifier, horizon
         self._last: tuple[float, int] | None = None  # (frame time s, CRC-32) of the last frame passed
 
+    def _shape_ok(self, img: object) -> bool:
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:
+            return False
+        if self.rectifier is not None:
+            return self.rectifier.accepts(img.shape[1], img.shape[0])
+        return img.shape == (self.height, self.width, 3)
+
+    def check_source(self, source: CameraSource, name: str = "camera") -> None:
+        """At start-up: ConfigError (one line naming both sizes) when the source's frames cannot be scaled to
+        the camera model (another aspect ratio). Sources that tell their size only later are checked per frame."""
+        size = source.frame_size()
+        if size is None:
+            return
+        if self.rectifier is not None:
+            self.rectifier.check_size(size[0], size[1], name)
+        elif size != (self.width, self.height):
+            raise ConfigError(f"{name}: frames are {size[0]}x{size[1]} px but the camera model is "
+                              f"{self.width}x{self.height} px")
+
     def check(self, got: tuple[float, np.ndarray] | None, t: float) -> tuple[float, np.ndarray]:
-        """(frame time, RGB uint8 (H, W, 3)) of a frame nearest capture time t (s, the source's clock), or
-        FrameRejected with the reason."""
+        """(frame time, RGB uint8 (height, width, 3) of the camera model) of a frame nearest capture time t
+        (s, the source's clock), or FrameRejected with the reason."""
         if got is None:
             raise FrameRejected("no_frame")
         t_frame, img = got
         if not math.isfinite(t_frame) or abs(t_frame - t) > self.max_gap_s:
             raise FrameRejected("stale_frame", f"frame {t_frame - t:+.3f} s from the capture time")
-        if not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.shape != (self.height, self.width, 3):
+        if not self._shape_ok(img):
             shape = getattr(img, "shape", None)
+            scaled = " or the same aspect" if self.rectifier is not None else ""
             raise FrameRejected("bad_shape", f"{shape} {getattr(img, 'dtype', type(img).__name__)}, expected "
-                                             f"({self.height}, {self.width}, 3) uint8")
+                                             f"({self.height}, {self.width}, 3){scaled} uint8")
         if float(img[::4, ::4].std()) < self.min_std:
             raise FrameRejected("blank_frame", f"mean grey {float(img[::4, ::4].mean()):.0f}")
         crc = zlib.crc32(np.ascontiguousarray(img).data)
         last, self._last = self._last, (t_frame, crc)
         if self.check_frozen and last is not None and last[1] == crc and last[0] != t_frame:
             raise FrameRejected("frozen_frame", f"identical to the frame at {last[0]:.3f} s")
+        if self.rectifier is not None:
+            img = self.rectifier(img)
+        if self.horizon is not None:
+            self.horizon.observe(img)
         return t_frame, img
 
+    def take_warnings(self) -> list[HorizonWarning]:
+        """Horizon warnings queued since the last call (for the loop thread: event log and STATUSTEXT)."""
+        return self.horizon.take_warnings() if self.horizon is not None else []
 
-def open_camera(spec: str, camera: GroundCamera) -> CameraSource:
-    """A camera source from a `--camera` spec (see the module docstring)."""
+
+def open_camera(spec: str, camera: GroundCamera, lens: LensCalibration | None = None) -> CameraSource:
+    """A camera source from a `--camera` spec (see the module docstring); lens: a world camera renders
+    through it (the profile's calibration)."""
     if spec.startswith("world:"):
-        return WorldSource(spec[len("world:"):], camera)
+        return WorldSource(spec[len("world:"):], camera, lens=lens)
     if spec.startswith("folder:") or (Path(spec).is_dir()):
         body = spec[len("folder:"):] if spec.startswith("folder:") else spec
         path, _, offset = body.partition("@")

@@ -164,6 +164,20 @@ def _sim_table(name: str, seq: dict) -> str:
     return "\n".join(f"{k:28s} {v}" for k, v in rows)
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from taco_mav.calibrate import calibrate, parse_board
+
+    res = calibrate(Path(args.images), parse_board(args.board), args.square, Path(args.out), fisheye=args.fisheye)
+    K, D = res.lens.K, res.lens.D
+    print(f"board found in {len(res.used)} of {res.images} images")
+    print(f"fx {K[0, 0]:.2f}  fy {K[1, 1]:.2f}  cx {K[0, 2]:.2f}  cy {K[1, 2]:.2f} px "
+          f"({res.lens.width}x{res.lens.height})")
+    print(f"{res.lens.model.value} distortion {' '.join(f'{d:+.5f}' for d in D)}")
+    print(f"RMS reprojection error {res.rms_px:.3f} px")
+    print(f"wrote {res.out}")
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from taco_mav.demo import run_demo
 
@@ -268,6 +282,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-home", action="store_true", help="send neither HOME_POSITION nor GPS_GLOBAL_ORIGIN")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the companion's HEARTBEAT")
     p.set_defaults(func=_cmd_sim)
+
+    p = sub.add_parser("calibrate", parents=[common], help="camera intrinsics and lens distortion from chessboard "
+                       "photos, written as OpenCV FileStorage YAML (the profile's camera.calibration)")
+    p.add_argument("--images", required=True, help="folder of chessboard photos (.png, .jpg, ...) of one size")
+    p.add_argument("--board", default="9x6", help="inner corners COLSxROWS (default 9x6: a board of 10x7 squares)")
+    p.add_argument("--square", type=float, default=0.025, help="side of one square, m (default 0.025)")
+    p.add_argument("--out", required=True, help="calibration file to write, e.g. camera.yaml")
+    p.add_argument("--fisheye", action="store_true", help="fisheye (equidistant) lens model instead of plumb_bob")
+    p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("demo", parents=[common], help="synthetic world + simulator + daemon on loopback, one command")
     p.add_argument("--out", default="taco_demo", help="output folder (default ./taco_demo; the world is reused)")

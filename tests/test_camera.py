@@ -14,6 +14,7 @@ import rasterio
 from rasterio.transform import Affine
 
 from taco_mav.camera import ClockDomain, FolderSource, VideoSource, WorldSource, open_camera
+from taco_mav.camera_calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.errors import ConfigError
@@ -79,7 +80,8 @@ def test_video_source_unopenable() -> None:
         VideoSource("/nonexistent/clip.avi").start()
 
 
-def test_world_source_renders_at_pose(tmp_path: Path) -> None:
+def _world(tmp_path: Path) -> None:
+    """A textured 200 m square GeoTIFF about 49.0 N 8.4 E and the world.json naming it, in tmp_path."""
     proj = UtmProjector.for_latlon(49.0, 8.4)
     e0, n0 = proj.to_utm(49.0, 8.4)
     rng = np.random.default_rng(0)
@@ -90,7 +92,12 @@ def test_world_source_renders_at_pose(tmp_path: Path) -> None:
                        crs=f"EPSG:{proj.epsg}", transform=tf) as ds:
         ds.write(np.transpose(tex, (2, 0, 1)))
     (tmp_path / "world.json").write_text(json.dumps({"mosaic": "map.tif"}))
+
+
+def test_world_source_renders_at_pose(tmp_path: Path) -> None:
+    _world(tmp_path)
     src = open_camera(f"world:{tmp_path}", CAM)
+    assert src.frame_size() == (CAM.width, CAM.height)
     assert isinstance(src, WorldSource) and src.needs_pose and src.mosaic_path == (tmp_path / "map.tif").resolve()
     assert src.frame_near(1.0, 0.1) is None
     src.feed_pose(10.0, 49.0, 8.4, 0.0)
@@ -101,3 +108,38 @@ def test_world_source_renders_at_pose(tmp_path: Path) -> None:
     assert t2 == 10.1 and np.abs(north.astype(int) - east.astype(int)).mean() > 10  # different view
     src.feed_pose(2.0, 49.0, 8.4, 0.0)  # clock went back (reboot): history cleared
     assert src.frame_near(10.0, 0.05) is None
+
+
+def test_world_source_renders_through_a_lens(tmp_path: Path) -> None:
+    """world: with the profile's calibration: frames of the lens's size, distorted; the rectifier undoes it."""
+    _world(tmp_path)
+    D = np.array([-0.3, 0.1, 0.0, 0.0, 0.0])
+    lens = LensCalibration(CAM.K.copy(), D, LensModel.PLUMB_BOB, CAM.width, CAM.height)
+    src = open_camera(f"world:{tmp_path}", GroundCamera(pinhole_matrix(lens), CAM.width, CAM.height, 1.65), lens)
+    assert src.frame_size() == (CAM.width, CAM.height)
+    plain = open_camera(f"world:{tmp_path}", GroundCamera(pinhole_matrix(lens), CAM.width, CAM.height, 1.65))
+    for s in (src, plain):
+        s.feed_pose(10.0, 49.0, 8.4, 0.3)
+    _, raw = src.frame_near(10.0, 0.1)
+    _, pin = plain.frame_near(10.0, 0.1)
+    rect = FrameRectifier(CAM.width, CAM.height, pinhole_matrix(lens), lens)
+    ground = slice(CAM.height // 2 + 5, CAM.height)
+    d_rect = np.abs(rect(raw).astype(float) - pin)[ground].mean()
+    d_raw = np.abs(raw.astype(float) - pin)[ground].mean()
+    assert raw.shape == pin.shape == (CAM.height, CAM.width, 3) and d_raw > 3 * d_rect, (d_raw, d_rect)
+
+
+def test_sources_tell_their_frame_size(tmp_path: Path) -> None:
+    assert open_camera(f"folder:{_folder(tmp_path)}", CAM).frame_size() == (30, 20)
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 50.0, (32, 24))
+    if not writer.isOpened():
+        pytest.skip("OpenCV build cannot write MJPG")
+    for i in range(3):
+        writer.write(np.full((24, 32, 3), 10 * i, np.uint8))
+    writer.release()
+    video = open_camera(str(path), CAM)
+    assert video.frame_size() is None  # not opened yet
+    video.start()
+    assert video.frame_size() == (32, 24)
+    video.close()

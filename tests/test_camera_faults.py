@@ -5,7 +5,9 @@ freezes."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 import time
 from pathlib import Path
 
@@ -13,6 +15,7 @@ import numpy as np
 import pytest
 
 from taco_mav.camera import FolderSource, FrameGuard, FrameRejected, VideoSource
+from taco_mav.errors import ConfigError
 from taco_mav.geo import UtmProjector
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from taco_mav.link.encoders import Origin
@@ -74,8 +77,8 @@ def _frames(kind: str) -> list[np.ndarray | bytes]:
         return [np.random.default_rng(i).bytes(3000) for i in range(n)]
     if kind == "blank_frame":
         return [np.zeros((120, 160, 3), np.uint8)] * n
-    if kind == "bad_shape":
-        return [noise_image(i, 80, 60) for i in range(n)]
+    if kind == "bad_shape":  # the camera switched to another aspect after its first frame (checked at start-up)
+        return [noise_image(0)] + [noise_image(i, 100, 60) for i in range(1, n)]
     if kind == "frozen_frame":
         return [noise_image(7)] * n
     assert kind == "stale_frame"
@@ -103,6 +106,39 @@ def test_good_frames_control(tmp_path: Path) -> None:
                        camera=f"folder:{write_folder(tmp_path, _frames('good'))}")
     assert run.stats.fixes["accepted"] == run.stats.queries >= 4
     assert run.sigma[run.t > run.t[-1] - 4.0].min() < 5.0  # fixes every ~2 s keep it small
+
+
+def test_frames_of_another_size_are_scaled(tmp_path: Path) -> None:
+    """A camera streaming 80 x 60 px (the profile says 160 x 120): frames are scaled, every trigger answered."""
+    run = run_pipeline(small_camera_profile(), straight_drive(DRIVE_S),
+                       camera=f"folder:{write_folder(tmp_path, [noise_image(i, 80, 60) for i in range(125)])}")
+    assert run.stats.fixes["accepted"] == run.stats.queries >= 4
+
+
+def test_camera_of_another_aspect_is_refused_at_start(tmp_path: Path) -> None:
+    folder = write_folder(tmp_path, [noise_image(i, 100, 60) for i in range(5)])
+    with pytest.raises(ConfigError) as exc:
+        run_pipeline(small_camera_profile(), straight_drive(2.0), camera=f"folder:{folder}")
+    assert str(exc.value) == (f"--camera folder:{folder}: frames are 100x60 px but the profile camera.width_px x "
+                              "height_px is 160x120 px: another aspect ratio (1.667 vs 1.333), cannot be scaled")
+
+
+def test_misconfigured_pitch_warns_by_statustext(tmp_path: Path) -> None:
+    """Frames of a camera looking 0.12 rad down, a profile saying level: one "camera pitch" STATUSTEXT."""
+    from rasterio.transform import from_origin
+
+    from taco_mav.bench.classical import textured_mosaic
+    from taco_mav.camera_geometry import GroundCamera
+    from taco_mav.datasets.synthetic.render import GroundRenderer
+
+    profile = small_camera_profile()
+    cam = GroundCamera.from_config(dataclasses.replace(profile.camera, pitch_rad=0.12))
+    renderer = GroundRenderer(textured_mosaic(3, 1200, 0.2), from_origin(0.0, 240.0, 0.2, 0.2), cam)
+    frames = [renderer.render((60.0 + 0.5 * i, 120.0, 0.0)) for i in range(125)]
+    run = run_pipeline(profile, straight_drive(DRIVE_S), camera=f"folder:{write_folder(tmp_path, frames)}")
+    assert run.stats.fixes["accepted"] == run.stats.queries >= 4
+    warned = [t for t in run.texts if t.startswith("camera pitch")]
+    assert len(warned) == 1 and re.fullmatch(r"camera pitch \+5\.\ddeg\? profile \+0\.0", warned[0]), run.texts
 
 
 def test_drive_off_the_map(tmp_path: Path) -> None:

@@ -21,6 +21,7 @@ daemon's Health degrades the fix type: nothing here extrapolates a fix.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import queue
@@ -32,12 +33,15 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 import numpy as np
 
 from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, WorldSource, open_camera
+from taco_mav.camera_calibration import FrameRectifier
 from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera_horizon import HorizonCheck
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
+from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
 from taco_mav.link.decoders import SimPose
 from taco_mav.link.eventlog import EventLog
@@ -75,6 +79,7 @@ class FixPipeline:
         self.profile, self.opt = profile, options
         self.clockmap, self.stats, self.status = clockmap, stats, status
         self.ground_camera = GroundCamera.from_config(profile.camera)
+        self.rectifier = FrameRectifier.from_config(profile.camera)  # raw frames -> the undistorted model
         self.events: EventLog | None = None
         self.camera: CameraSource | None = None
         self.guard: FrameGuard | None = None
@@ -87,16 +92,18 @@ class FixPipeline:
         self._stuck: list[MatchWorker] = []  # abandoned workers (matcher hung)
         self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
         self._truth_lock = threading.Lock()  # appended by the loop thread, searched by the matcher worker
+        self.last_weight = 0.0  # best crop's match weight w of the last answered query (0: none yet)
 
     # ------------------------------------------------------------------ lifecycle
     def open(self, events: EventLog) -> None:
         """Open the camera, the satellite map (`--map`, or the world's mosaic) and the matcher; no threads."""
         p, opt = self.profile, self.opt
         self.events = events
-        self.camera = open_camera(opt.camera, self.ground_camera) if opt.camera else None
+        self.camera = open_camera(opt.camera, self.ground_camera, self.rectifier.lens) if opt.camera else None
         if self.camera is not None:
             self.guard = FrameGuard(self.ground_camera.width, self.ground_camera.height, opt.frame_max_gap_s,
-                                    check_frozen=not self.camera.noiseless)
+                                    check_frozen=not self.camera.noiseless, rectifier=self.rectifier,
+                                    horizon=HorizonCheck(self.ground_camera))
         map_path = opt.map_path or (self.camera.mosaic_path if isinstance(self.camera, WorldSource) else None)
         if map_path is not None:
             from taco_mav.cvgl.satellite import SatelliteMap
@@ -118,6 +125,12 @@ class FixPipeline:
         """Start the camera's grab thread (the matcher worker starts with the origin, `on_origin`)."""
         if self.camera is not None:
             self.camera.start()
+            try:
+                assert self.guard is not None
+                self.guard.check_source(self.camera, f"--camera {self.opt.camera}")
+            except ConfigError:
+                self.camera.close()
+                raise
 
     def stop(self) -> None:
         """Stop the worker thread (waiting at most 1 s: a hung matcher never blocks shutdown) and close the
@@ -184,6 +197,10 @@ class FixPipeline:
     def poll(self, loc: Localiser | None, generation: int) -> None:
         """Hand the Localiser's pending query (if any) to the worker, or cancel it when it cannot be answered.
         generation: the Localiser's generation, carried back with the result."""
+        for w in self.guard.take_warnings() if self.guard is not None else []:
+            assert self.events is not None
+            self.events.write("camera_pitch", **dataclasses.asdict(w))
+            self.status(SEV_WARNING, w.text, "camera_pitch")
         if loc is None:
             return
         self._watchdog(loc)
@@ -311,6 +328,7 @@ class FixPipeline:
                 self.stats.fixes["fix_error"] += 1
                 continue
             self.stats.fixes[out.reason] += 1
+            self.last_weight = max(out.weights, default=0.0)  # the ground station's taco_w (gcs.py)
             est = loc.estimate()
             self.events.write(
                 "fix", query_id=q.query_id, reason=q.reason, capture_t=q.capture_t, frame_t=res.frame_t,

@@ -57,7 +57,7 @@ class MotionPipeline:
         cam = fixes.ground_camera
         self.motion = GroundMotion(cam)
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
-                                check_frozen=False)
+                                check_frozen=False, rectifier=fixes.rectifier)  # frames undistorted as for fixes
         self.counts: Counter[str] = Counter()
         self._headings: deque[tuple[float, float]] = deque(maxlen=4000)
         self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)

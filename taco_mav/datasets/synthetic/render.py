@@ -14,6 +14,10 @@ covers several mosaic pixels, sample a pre-blurred (pyrDown) level of the mosaic
 pitch-only camera the footprint depends on the row only, so each level is a contiguous band of rows.
 The source is sliced to a window around the pose before remapping (a numpy view, no copy), which keeps OpenCV's
 fixed-point coordinates in range for mosaics wider than 32k pixels.
+
+`LensRenderer` draws through a distorting lens (a `LensCalibration`): a pinhole view wide enough for the lens's
+field of view, resampled once by the lens model (raw pixel -> ray -> pinhole pixel, `lens_maps`), so a camera
+pipeline that undistorts its frames can be exercised end to end.
 """
 
 from __future__ import annotations
@@ -25,12 +29,13 @@ import cv2
 import numpy as np
 from rasterio.transform import Affine
 
+from taco_mav.camera_calibration import LensCalibration, lens_maps, wide_pinhole
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.errors import DataError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GroundRenderer"]
+__all__ = ["GroundRenderer", "LensRenderer"]
 
 
 class GroundRenderer:
@@ -190,3 +195,26 @@ class GroundRenderer:
         if c0c >= c1c or r0c >= r1c:
             return img[0:0, 0:0], (c0c, r0c)
         return img[r0c:r1c, c0c:c1c], (c0c, r0c)
+
+
+class LensRenderer:
+    """Renders uint8 RGB (lens.height, lens.width, 3) views of a flat textured world through a distorting lens.
+
+    mosaic, transform: as `GroundRenderer`; lens: the lens (intrinsics, distortion, image size);
+    mount_height_m, pitch_rad: the mount (metres above the ground; radians, positive = looking down);
+    renderer_kw: more `GroundRenderer` arguments (max_range_m, haze_m, ...). `pinhole` is the wide pinhole
+    renderer drawn first (its camera: the lens's focal length, a view holding the lens's whole field of view).
+    """
+
+    def __init__(self, mosaic: np.ndarray, transform: Affine, lens: LensCalibration, mount_height_m: float,
+                 pitch_rad: float = 0.0, **renderer_kw: object) -> None:
+        K, w, h = wide_pinhole(lens)
+        self.lens = lens
+        self.pinhole = GroundRenderer(mosaic, transform, GroundCamera(K, w, h, mount_height_m, pitch_rad),
+                                      **renderer_kw)  # type: ignore[arg-type]
+        self._mx, self._my = cv2.convertMaps(*lens_maps(lens, K), cv2.CV_16SC2)
+
+    def render(self, pose_utm: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+        """The distorted camera view from pose (E, N, theta): UTM metres and ENU heading radians."""
+        return cv2.remap(self.pinhole.render(pose_utm), self._mx, self._my, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
