@@ -22,6 +22,7 @@ import numpy as np
 
 from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, MomentAccumulator, Moments, error_terms
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
+from taco_mav.core.gnss_fusion import GnssFusion, GnssMeasurement
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.preintegration import Increment, Preintegrator
 from taco_mav.core.search import (TriggerReason, best_candidate, cross_offsets, cross_spacing, fix_position,
@@ -51,6 +52,7 @@ class _Tick:
     fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
     stationary: bool = False  # taco+: zero-velocity update at this frame
     dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
+    gnss: list[GnssMeasurement] = field(default_factory=list)  # real GNSS applied at this frame (replayed)
 
 
 @dataclass(frozen=True)
@@ -81,8 +83,9 @@ class _Pending:
     x_at_capture: np.ndarray
 
 
-class Localiser:
-    """TACO paper mode. All times in autopilot seconds."""
+class Localiser(GnssFusion):
+    """TACO paper mode (plus real GNSS while it is honest: `add_gnss`, see gnss_fusion.py). All times in
+    autopilot seconds."""
 
     def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
                  speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> None:
@@ -118,6 +121,7 @@ class Localiser:
         self.outcomes: list[FixOutcome] = []
         self.queries: list[FixQuery] = []
         self._record_track(t0)
+        self._gnss_init()
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -127,6 +131,7 @@ class Localiser:
         if dt <= 0.0:
             return
         self.t = sample.t
+        self._gnss_imu(sample.t, dt)
         self._interval_residual.add(self.highpass.step(self.pre.accel_fwd, dt))
         # A frame closes at the sample nearest its slot (within half a sample interval, at most a quarter
         # period), so timestamp jitter (KITTI's 10 Hz OXTS wanders by ~+-10 ms) neither skips nor doubles frames.
@@ -150,6 +155,7 @@ class Localiser:
             self._graph_inc.append((inc.d_fwd, inc.d_left, inc.d_theta))
             self._graph_sigma.append(self._odometry_sigma(tick))
             self._record_track(self.t)
+        self._gnss_frame(tick)
         self._maybe_trigger()
 
     def _advance(self, tick: _Tick, pre_x: float, pre_y: float) -> None:
@@ -167,6 +173,8 @@ class Localiser:
         self._terms = terms
         tick.terms, tick.window, tick.pre_xy = terms, self._window, (pre_x, pre_y)
         tick.x, tick.P = self.ukf.get_state()
+        if tick.gnss:
+            self._gnss_replay(tick)
 
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
@@ -199,7 +207,7 @@ class Localiser:
             self._pending = None  # unanswered: drop it so the pipeline can ask again
         if self._ready is not None:
             return
-        plan = self._plan_search()
+        plan = self._gnss_plan(self._plan_search())
         if plan is None:
             return
         reason, bias, offsets = plan
@@ -339,6 +347,7 @@ class Localiser:
     def _log(self, outcome: FixOutcome) -> FixOutcome:
         if self.record:
             self.outcomes.append(outcome)
+        self._gnss_fix_outcome(outcome)
         return outcome
 
     # ------------------------------------------------------------------ outputs

@@ -17,16 +17,19 @@ import numpy as np
 
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.gate import yaw_residual
+from taco_mav.core.gnss_fusion import GnssMeasurement
+from taco_mav.core.gnss_guard import receiver_variances
 from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus import (FixNoiseScale, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
                                 process_noise_plus)
+from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.search import cross_offsets, fix_position
 from taco_mav.core.stationary import StationaryDetector
 from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
-from taco_mav.core.ukf import PlanarUkf, fix_covariance
+from taco_mav.core.ukf import PlanarUkf, fix_covariance, joseph_update
 
 
 def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
@@ -62,6 +65,8 @@ class PlusLocaliser(Localiser):
         self._zupt_since_reset = False  # a zero-velocity update since the IMU-only track was reset
         self._speed_seen_t, self._speed_seen_sigma = t0, q.initial_speed_sigma_mps  # last speed observation
         self._drive: tuple[float, bool] | None = None  # (t, the autopilot drives) from set_drive_command
+        self._camera_moving_until = -math.inf  # the camera saw the ground move: no zero-velocity update
+        self._camera_gated = 0  # camera speed measurements held off in a row
         self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
         self._last_answer_t = -math.inf
         self._zupt = False  # the last frame had a zero-velocity update
@@ -85,8 +90,65 @@ class PlusLocaliser(Localiser):
         self._drive = (t, driving)
 
     def _driving(self) -> bool:
+        """The autopilot drives (a recent drive command), or the camera saw the ground move."""
         d = self._drive
-        return d is not None and d[1] and self.t - d[0] <= self.q.drive_command_timeout_s
+        return (d is not None and d[1] and self.t - d[0] <= self.q.drive_command_timeout_s
+                or self.t <= self._camera_moving_until)
+
+    # ------------------------------------------------------------------ camera speed (issue 19)
+    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
+        """The camera's ground-plane translation between its frames at t0 and t1 (autopilot s), in frame 0's
+        body axes (metres, 1-sigma metres), as a speed measurement of the speed error x[3] at the middle of the
+        interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
+        second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
+        99.9 %), and three in a row make a zero-velocity update since the last fix suspect. Returns "used",
+        "gated", "stale" (its frames are older than the history) or "invalid"."""
+        dt = t1 - t0
+        if not (math.isfinite(dt) and math.isfinite(d_fwd) and math.isfinite(d_left) and math.isfinite(sigma_m)) \
+                or dt <= 0.05 or sigma_m <= 0.0 or math.hypot(d_fwd, d_left) > 60.0 * dt:
+            return "invalid"
+        v_cam = math.copysign(math.hypot(d_fwd, d_left), d_fwd) / dt
+        if abs(v_cam) >= self.q.zupt_speed_max_mps:
+            self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)
+        v_est = self._speed_at(0.5 * (t0 + t1))
+        if v_est is None:
+            return "stale"
+        var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
+        z = v_cam - v_est
+        P33 = float(self.ukf.P[3, 3])
+        if z * z > 10.83 * (P33 + var):
+            self._camera_gated += 1
+            if self._camera_gated >= 3:
+                self._distrust_zupt()
+                x, P = self.ukf.get_state()
+                P[3, 3] = max(P33, z * z)
+                self.ukf.set_state(x, P)
+            return "gated"
+        self._camera_gated = 0
+        before = self.ukf.x[:2].copy()
+        self.ukf.update_speed_error(float(self.ukf.x[3]) + z, math.sqrt(var))
+        if self.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
+            self.unaided.x += float(self.ukf.x[0] - before[0])
+            self.unaided.y += float(self.ukf.x[1] - before[1])
+        if self._history:  # a rewind to the last frame (a late fix) starts from the updated state
+            self._history[-1].x, self._history[-1].P = self.ukf.get_state()
+            self._feedback(self._history[-1])
+        self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+        return "used"
+
+    def _speed_at(self, t: float) -> float | None:
+        """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
+        before the history."""
+        h = self._history
+        if not h or t < h[0].t - self.frame_dt:
+            return None
+        speeds = [(k.t, k.inc.speed_end + k.dv_fed) for k in h]
+        if t >= speeds[-1][0]:
+            return float(self.pre.speed)
+        for (ta, va), (tb, vb) in zip(speeds, speeds[1:]):
+            if ta <= t <= tb:
+                return va + (vb - va) * (t - ta) / max(tb - ta, 1e-9)
+        return speeds[0][1]
 
     def _open_tick(self, tick: _Tick) -> None:
         # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot tell from
@@ -366,3 +428,57 @@ class PlusLocaliser(Localiser):
     def take_lock_events(self) -> list[tuple[float, str, str]]:
         """The lock events not yet taken (the daemon logs each once)."""
         return self.lock.take_unreported()
+
+    # ------------------------------------------------------------------ real GNSS (issue 14, gnss_fusion.py)
+    _gnss_replaces = False  # a Kalman update, not a re-anchoring
+
+    def _gnss_apply(self, tick: _Tick, m: GnssMeasurement) -> None:
+        """Kalman update at `tick`: position (isotropic sigma_h) and, when the reading has a speed (above
+        gnss.min_speed_mps), the speed error x[3] (the ground speed at the frame end against the preintegrated
+        speed there, m/s) and the heading x[2] (the course; as the compass reads theta + beta this makes the
+        compass bias x[5] observable, and the speed the accelerometer bias x[4]). The receiver's wander (the
+        bias share of sigma_h, see gnss_guard) stays in the position covariance as a floor: averaging readings
+        does not remove it, and the reported accuracy, the camera gates and the hand-over to dead reckoning must
+        know it."""
+        x, P = self.ukf.get_state()
+        rows, innov, var = [0, 1], [m.xy[0] - x[0], m.xy[1] - x[1]], [m.var_xy, m.var_xy]
+        if m.speed is not None:
+            rows.append(3)
+            innov.append(m.speed - (tick.inc.speed_end + tick.dv_fed) - x[3])
+            var.append(m.var_speed)
+        if m.course is not None:
+            rows.append(2)
+            innov.append(wrap_angle(m.course - x[2]))
+            var.append(m.var_course)
+        H = np.zeros((len(rows), len(x)))
+        H[np.arange(len(rows)), rows] = 1.0
+        x, P, _ = joseph_update(x, P, H, np.array(innov), np.diag(var))
+        x[2] = wrap_angle(x[2])
+        floor = receiver_variances(math.sqrt(m.var_xy), self.p.gnss)[1]
+        lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
+        if lo < floor:
+            P[:2, :2] += (floor - lo) * np.eye(2)
+        self.ukf.set_state(x, P)
+
+    def _gnss_fused_live(self, tick: _Tick, m: GnssMeasurement) -> None:
+        """After a batch of readings: feed the speed error back, as after an accepted fix."""
+        if self._history:
+            self._feedback(self._history[-1])
+        if m.speed is not None:
+            self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+        if self.q.guard:
+            self._reset_unaided()
+
+    def _gnss_anchor_terms(self, tick: _Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+        x, P = tick.x, tick.P
+        beta = float(x[5]) if len(x) > 5 else 0.0
+        var_heading = float(P[5, 5]) if len(x) > 5 else float(P[2, 2])
+        sig = tuple(math.sqrt(max(v, 0.0)) for v in (float(P[3, 3]), float(P[4, 4]), var_heading))
+        return float(tick.inc.speed_end + tick.dv_fed + x[3]), float(x[4]), beta, sig
+
+    def _gnss_after_rollback(self, later: list[_Tick]) -> None:
+        """The replay left the undone speed corrections in the speed error: feed it back."""
+        if self._history:
+            self._feedback(self._history[-1])
+        if self.q.guard:
+            self._reset_unaided()

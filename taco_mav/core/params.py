@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from taco_mav.core.gnss_guard import GnssParams
 from taco_mav.core.plus import PlusParams
 from taco_mav.core.smoother import SmootherParams
 
@@ -59,3 +60,5 @@ class LocaliserParams:
     smoother: SmootherParams = field(default_factory=SmootherParams)
     # taco+ (issue 7): None = paper mode
     plus: PlusParams | None = None
+    # real GNSS while it is honest, and the spoofing/jamming guard (issue 14)
+    gnss: GnssParams = field(default_factory=GnssParams)

@@ -52,6 +52,8 @@ class PlusParams:
     zupt_accel_mean_max_mps2: float = 0.15
     drive_command_timeout_s: float = 1.0
     imu_accel_sigma_mps2: float = 0.05
+    camera_speed: bool = True
+    camera_speed_scale_sigma: float = 0.03
     # closed-loop safety guard (core/imu_check.py)
     guard: bool = True
     guard_k: float = 3.0
