@@ -3,6 +3,7 @@
 
     python tools/fuzz_mavlink.py --frames 100000 --seed 0 --out fuzz.json
     python tools/fuzz_mavlink.py --frames 20000 --exclude time_back,time_forward,negative_dt,zero_dt --out f.json
+    python tools/fuzz_mavlink.py --frames 30000 --imu-message auto --corrupt-imu-first 200 --out f.json
 
 Feeds seeded random and mutated MAVLink frames (taco_mav/link/fuzz_frames.py: bit flips, truncations, bad CRC,
 unknown ids, out-of-range and NaN/inf fields, zero/negative dt, time jumps, duplicates, late frames, foreign
@@ -25,7 +26,8 @@ from taco_mav.link.fuzz_frames import MUTATIONS
 
 HEADLINE = ("fuzz_frames", "datagrams_sent", "datagrams_read", "wall_s", "crashes", "escaped_exceptions",
             "handler_errors", "logged_exceptions", "nonfinite_output_fields", "designed_nan_fields",
-            "out_of_range_output_fields", "all_anchored", "gps_input_during_fuzz", "reboots", "rejected_by_reason")
+            "out_of_range_output_fields", "all_anchored", "gps_input_during_fuzz", "gps_input_fix3_during_fuzz",
+            "imu_sources", "reboots", "rejected_by_reason")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -37,6 +39,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--exclude", default="", help=f"mutations left out, comma-separated (of {', '.join(MUTATIONS)})")
     p.add_argument("--realtime-factor", type=float, default=10.0,
                    help="autopilot seconds per wall second at most; 0 = as fast as the daemon reads")
+    p.add_argument("--imu-message", default=None,
+                   help="the daemon's link.imu_message (default: pinned to each episode's kind; 'auto': chosen)")
+    p.add_argument("--corrupt-imu-first", type=int, default=0,
+                   help="corrupt IMU messages (every kind) sent before the first valid IMU sample")
     p.add_argument("-v", "--verbose", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR,
@@ -49,7 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     opts = FuzzOptions(frames=args.frames, seed=args.seed, imu_kinds=tuple(s.strip() for s in args.imu.split(",")),
                        realtime_factor=args.realtime_factor or None,
-                       mutations=tuple(name for name in MUTATIONS if name not in excluded))
+                       mutations=tuple(name for name in MUTATIONS if name not in excluded),
+                       imu_message=args.imu_message, corrupt_imu_first=args.corrupt_imu_first)
     report = run_fuzz(opts, progress=args.verbose)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

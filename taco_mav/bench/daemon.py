@@ -5,7 +5,11 @@ RAW_IMU at 100 Hz and ATTITUDE at 50 Hz of a straight 5 m/s drive for `DURATION_
 with the default output (GPS_INPUT at 5 Hz) and the emulator matcher fed by SIMSTATE. Keys:
 - daemon_imu_to_estimate_p99_ms: per IMU message, the daemon's receive (socket read) -> Localiser updated, p99;
 - gps_input_interval_p99_ms / _mean_ms / _std_ms / _max_dev_ms: intervals between GPS_INPUT arrivals at the
-  player (ideal 200 ms), max_dev = the largest |interval - 200 ms|.
+  player (ideal 200 ms), max_dev = the largest |interval - 200 ms|; gps_input_jitter_p99_ms: p99 of
+  |interval - 200 ms|;
+- gps_input_rate_autopilot_hz_1x / _5x: GPS_INPUT per second of the player's (autopilot's) clock, the player
+  at real time and 5x faster than real time (`SPEEDUP_S` wall seconds; the daemon on the machine's clock, as
+  beside SITL --speedup 5); gps_input_interval_p99_ms_5x: p99 interval there, autopilot ms.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from taco_mav.link.daemon import Daemon, DaemonOptions  # noqa: E402
 
 log = logging.getLogger(__name__)
 DURATION_S = 15.0
+SPEEDUP, SPEEDUP_S = 5.0, 6.0
 
 
 def _free_port() -> int:
@@ -35,7 +40,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _play(port: int, duration: float, arrivals: list[float]) -> None:
+def _play(port: int, duration: float, arrivals: list[float], speed: float = 1.0) -> None:
+    """The autopilot for `duration` wall seconds, its clock `speed` x real time; arrivals: the autopilot time of
+    each GPS_INPUT received, s."""
     m = mavutil.mavlink
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1,
                                       dialect="ardupilotmega")
@@ -45,7 +52,8 @@ def _play(port: int, duration: float, arrivals: list[float]) -> None:
     yaw = math.radians(30.0)
     lat0, lon0 = 49.0, 8.4
     while (el := time.monotonic() - start) < duration:
-        t_ap = 100.0 + el
+        t_ap = 100.0 + speed * el
+        el = speed * el  # the drive below runs on the autopilot's clock
         if k_hb <= el:
             mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
             if el < 2.0:
@@ -67,28 +75,40 @@ def _play(port: int, duration: float, arrivals: list[float]) -> None:
         while (msg := conn.recv_msg()) is not None:
             kind = msg.get_type()
             if kind == "GPS_INPUT":
-                arrivals.append(time.monotonic())
+                arrivals.append(100.0 + speed * (time.monotonic() - start))
             elif kind == "COMMAND_LONG":
                 mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)
             elif kind == "PARAM_REQUEST_READ" and msg.param_id == "GPS1_TYPE":
                 mav.param_value_send(b"GPS1_TYPE", 14.0, m.MAV_PARAM_TYPE_INT8, 900, 1)
             elif kind == "TIMESYNC" and msg.tc1 == 0:
-                mav.timesync_send(int((100.0 + time.monotonic() - start) * 1e9), msg.ts1)
+                mav.timesync_send(int((100.0 + speed * (time.monotonic() - start)) * 1e9), msg.ts1)
         time.sleep(0.001)
     conn.close()
 
 
-def run(progress: bool = True) -> dict[str, float]:
+def _drive(duration: float, speed: float) -> tuple[Daemon, list[float]]:
+    """One daemon against the player at `speed`; (the stopped daemon, GPS_INPUT arrivals in autopilot s)."""
     port = _free_port()
     daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)
     arrivals: list[float] = []
-    player = threading.Thread(target=_play, args=(port, DURATION_S, arrivals), daemon=True)
+    player = threading.Thread(target=_play, args=(port, duration, arrivals, speed), daemon=True)
     player.start()
-    player.join(DURATION_S + 10.0)
+    player.join(duration + 10.0)
     daemon.stop()
     daemon.join(10.0)
+    return daemon, arrivals
+
+
+def _rate(arrivals: list[float]) -> float | None:
+    """GPS_INPUT per autopilot second after the first two (start-up)."""
+    t = np.array(arrivals[2:])
+    return round(float((len(t) - 1) / (t[-1] - t[0])), 4) if len(t) > 10 and t[-1] > t[0] else None
+
+
+def run(progress: bool = True) -> dict[str, float]:
+    daemon, arrivals = _drive(DURATION_S, 1.0)
     lat_ms = np.array(daemon.stats.imu_to_estimate_s) * 1e3
     gaps_ms = np.diff(np.array(arrivals[2:])) * 1e3  # skip the first two (start-up)
     if len(lat_ms) < 100 or len(gaps_ms) < 10:
@@ -101,7 +121,14 @@ def run(progress: bool = True) -> dict[str, float]:
         "gps_input_interval_mean_ms": round(float(gaps_ms.mean()), 2),
         "gps_input_interval_std_ms": round(float(gaps_ms.std()), 2),
         "gps_input_interval_max_dev_ms": round(float(np.abs(gaps_ms - 200.0).max()), 2),
+        "gps_input_jitter_p99_ms": round(float(np.percentile(np.abs(gaps_ms - 200.0), 99)), 2),
     }
+    rate_1x = _rate(arrivals)
+    _, fast = _drive(SPEEDUP_S, SPEEDUP)
+    rate_5x = _rate(fast)
+    if rate_1x is not None and rate_5x is not None:
+        out.update(gps_input_rate_autopilot_hz_1x=rate_1x, gps_input_rate_autopilot_hz_5x=rate_5x,
+                   gps_input_interval_p99_ms_5x=round(float(np.percentile(np.diff(fast[2:]) * 1e3, 99)), 2))
     log.info("daemon bench: %s (%d IMU samples, %d GPS_INPUT, fixes %s)", out, len(lat_ms), len(arrivals),
              dict(daemon.stats.fixes))
     return out

@@ -8,7 +8,9 @@ garbled datagram cannot swallow the start of the next one. Refused frames go to 
 signing, "<MESSAGE>:<reason>" (unsigned, bad_signature, replay).
 
 Connection strings are pymavlink's: "udpin:0.0.0.0:14550", "udpout:192.168.1.10:14550", "tcp:127.0.0.1:5760",
-or a serial device, optionally with its baud rate: "/dev/ttyAMA0:921600" (or "/dev/ttyAMA0,921600").
+or a serial device, optionally with its baud rate: "/dev/ttyAMA0:921600" (or "/dev/ttyAMA0,921600"; without
+one the profile's link.baud). A serial device that vanishes (USB unplugged) is reopened at the same path and
+baud once it is back (`reconnect.pace_serial_reconnect`).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError, TacoError  # noqa: E402
 from taco_mav.link import signing  # noqa: E402
-from taco_mav.link.reconnect import open_tcp  # noqa: E402
+from taco_mav.link.reconnect import open_tcp, pace_serial_reconnect  # noqa: E402
 from taco_mav.link.tlog import TlogWriter  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -80,8 +82,11 @@ class Link:
                 self.conn = mavutil.mavlink_connection(device, baud=baud, source_system=sysid or 1,
                                                        source_component=compid, dialect="ardupilotmega",
                                                        autoreconnect=True, udp_timeout=udp_client_timeout_s)
+        except ImportError as exc:  # pymavlink imports pyserial only for a serial device
+            raise TacoError(f"--connect {conn!r}: a serial link needs pyserial ({exc}); pip install pyserial") from None
         except (OSError, ValueError) as exc:
             raise TacoError(f"--connect {conn!r}: cannot open ({exc})") from None
+        self.serial = pace_serial_reconnect(self.conn)  # an unplugged USB device is reopened, not fatal
         self.mav = self.conn.mav
         self.mav.robust_parsing = True
         self._udp = isinstance(self.conn, mavutil.mavudp)

@@ -23,7 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from taco_mav.config import Profile, localiser_params, profile_to_dict
+from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import ImuSample
 from taco_mav.cvgl.base import Matcher
@@ -35,14 +35,17 @@ from taco_mav.link.decoders import (GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES
                                     GnssReading, ImuReading)
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
+from taco_mav.link.gcs import GCS_HEALTH_HZ, GcsHealth
 from taco_mav.link.gnss import GnssEvent, GnssTracker
 from taco_mav.link.health import LinkWatch
+from taco_mav.link.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S, InputSources
 from taco_mav.link.imu_timeline import ImuTimeline, Verdict
+from taco_mav.link.motion import MotionPipeline
 from taco_mav.link.options import DaemonOptions, DaemonStats
 from taco_mav.link.output import OutputStage
 from taco_mav.link.reconnect import pace_tcp_reconnect
 from taco_mav.link.requests import GNSS_RATES, MessageRequest, ParamCheck, StreamRequester, ekf3_gate_warnings
-from taco_mav.link.scheduler import Periodic
+from taco_mav.link.scheduler import AutopilotPeriodic, Periodic
 from taco_mav.link.timesync import ClockMap
 
 log = logging.getLogger(__name__)
@@ -83,9 +86,11 @@ class Daemon:
         self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status, matcher)
         self.linkwatch = LinkWatch(options.link_timeout_s)
         self.loc: Localiser | None = None
+        self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed)
         self.anchor = Anchor(self.params)  # origin and Localiser generations (+1 at each re-anchoring)
         self.attitude: AttitudeReading | None = None
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
+        self.sources = InputSources(profile.link.imu_message)  # IMU and attitude streams: first valid, fallback
         self.last_imu: ImuReading | None = None
         self._armed: bool | None = None  # from the autopilot's HEARTBEAT
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
@@ -124,6 +129,9 @@ class Daemon:
                          udp_client_timeout_s=opt.link_timeout_s)
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
+        if self.fixes.camera is not None and p.plus.camera_speed and p.estimator is Estimator.TACO_PLUS:
+            self.motion = MotionPipeline(self.fixes)
+            self.motion.start()
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
         rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
@@ -145,9 +153,11 @@ class Daemon:
             self._offer_origin(OriginCandidate(*opt.origin, speed=0.0, course=None, source="--origin"))
         now = self.clock()
         self.t_heartbeat = Periodic(p.link.heartbeat_hz, now)
-        self.t_output = Periodic(p.output.rate_hz, now)
+        self.t_output = AutopilotPeriodic(p.output.rate_hz, now, self.clockmap.speed)  # rate in autopilot time
         self.t_timesync = Periodic(p.link.timesync_hz, now) if p.link.timesync_hz > 0 else None
         self.t_stats = Periodic(0.1, now + 10.0)
+        self.gcs = GcsHealth()
+        self.t_gcs = AutopilotPeriodic(GCS_HEALTH_HZ, now, self.clockmap.speed)  # NAMED_VALUE_FLOAT health
 
     def run(self) -> int:
         """The loop; returns 0 after a clean stop (logs flushed, threads stopped)."""
@@ -166,6 +176,8 @@ class Daemon:
     def _shutdown(self) -> None:
         if self.link is not None and self.link.target_system:
             self._status(SEV_NOTICE, "stopping", key=None)
+        if self.motion is not None:
+            self.motion.stop()
         self.fixes.stop()
         if getattr(self, "events", None) is not None:
             self.events.write("stop", stats=self.summary())
@@ -191,6 +203,8 @@ class Daemon:
                 self.stats.dropped["handler_error"] += 1
         self.fixes.drain(self.loc, self.anchor.generation)
         self.fixes.poll(self.loc, self.anchor.generation)
+        if self.motion is not None:
+            self.motion.tick(self.loc)
         self._periodic(self.clock())
 
     def _periodic(self, now: float) -> None:
@@ -207,6 +221,8 @@ class Daemon:
         if self.params_check is not None:
             self.params_check.tick(now, link.target_system, link.target_component)
         self._origin_tick(now)
+        if self.t_gcs.due(now) and link.target_system:  # on its grid from the start, sent once there is a target
+            self._gcs_health(now)
         if self.t_stats.due(now):
             self.events.write("stats", **self.summary())
         if self.linkwatch.check(now):
@@ -245,8 +261,9 @@ class Daemon:
         self._heard()
         if kind in IMU_MESSAGES:
             self._on_imu(msg, received)
-        elif kind == "ATTITUDE":
-            self.attitude = self.decoders.attitude(msg) or self.attitude
+        elif kind in ATTITUDE_MESSAGES:
+            self.attitude = self.sources.attitude_reading(msg, self.decoders, self.clock()) or self.attitude
+            self._source_switches()
         elif kind in GNSS_MESSAGES:
             self._on_gnss(msg)
         elif kind in ORIGIN_MESSAGES:
@@ -273,13 +290,8 @@ class Daemon:
                 self.events.write("param_check", warning=warning)
 
     def _on_imu(self, msg: Any, received: float) -> None:
-        kind = msg.get_type()
-        if self.imu_kind is None:
-            self.imu_kind = kind
-            log.info("IMU input: %s", kind)
-        if kind != self.imu_kind or (kind == "RAW_IMU" and getattr(msg, "id", 0) != 0):
-            return
-        r = self.decoders.imu(msg)
+        r = self.sources.imu_reading(msg, self.decoders, self.clock())  # the chosen stream's valid samples only
+        self._source_switches()
         if r is None:
             return
         check = self.timeline.check(r.t, self.loc is not None)
@@ -299,6 +311,9 @@ class Daemon:
             self.stats.dropped["imu_before_attitude"] += 1
             return
         a = self.attitude.at(r.t)
+        if r.t - self.attitude.t > ATTITUDE_STALE_S:  # no valid attitude for a while: the last one is used
+            self.stats.attitude_stale += 1
+            self._status(SEV_WARNING, f"attitude stale {r.t - self.attitude.t:.1f}s", key="attitude_stale")
         if self.loc is None:
             if self.origin is None:
                 self.stats.dropped["imu_before_origin"] += 1
@@ -308,6 +323,18 @@ class Daemon:
         self.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
         self.stats.imu_samples += 1
         self.stats.imu_to_estimate_s.append(time.perf_counter() - received)
+
+    def _source_switches(self) -> None:
+        """Log, count (summary "sources") and write the IMU / attitude source chosen or changed; a fallback
+        also goes to the ground station."""
+        for what, sw in self.sources.take_switches():
+            self.events.write("input_source", input=what, old=sw.old, new=sw.new, silent_s=sw.silent_s)
+            if sw.old is None:
+                log.info("%s input: %s", what.upper() if what == "imu" else what, sw.new)
+                continue
+            text = f"{what} {sw.old} silent {sw.silent_s:.1f}s: using {sw.new}"
+            log.warning("%s", text)
+            self._status(SEV_WARNING, text, key=None)
 
     def _on_vfr_hud(self, msg: Any) -> None:
         """The autopilot's throttle output (%): armed with throttle means it drives, which vetoes taco+'s
@@ -448,6 +475,25 @@ class Daemon:
             self.link.send(msg)
         self.stats.output_times.append(now)
 
+    def _gcs_health(self, now: float) -> None:
+        """NAMED_VALUE_FLOAT health for the ground station; a change of mode: log, event and STATUSTEXT."""
+        link = self.link
+        assert link is not None
+        svc = self.fixes.service.stats if self.fixes.service is not None else None
+        gnss = self.gnss.summary()
+        rep = self.gcs.update(now, self.loc.estimate() if self.loc is not None and self.origin is not None else None,
+                              self.output.last_hacc_m, self.output.health.healthy,
+                              "rejected" if gnss["rejecting"] else gnss["state"], self.stats.fixes,
+                              svc.answered if svc else 0, svc.triggers_off_map if svc else 0, self.fixes.last_weight)
+        t_ap = self.clockmap.now_autopilot()
+        for name, value in rep.values:
+            link.send(encoders.named_value_float(link.mav, int(t_ap * 1e3) if t_ap else 0, name, value))
+        if rep.change is not None:
+            severity, text = rep.change
+            log.warning("%s", text) if severity <= SEV_WARNING else log.info("%s", text)
+            self.events.write("mode", mode=self.gcs.mode.name, code=int(self.gcs.mode), text=text)
+            self._status(severity, text, key=None)
+
     def _health_changed(self, text: str, healthy: bool) -> None:
         log.info("%s", text) if healthy else log.warning("%s", text)
         self.events.write("health", text=text, healthy=healthy)
@@ -473,11 +519,15 @@ class Daemon:
                 "outputs": len(self.stats.output_times),
                 "output_slots_skipped": self.t_output.skipped if hasattr(self, "t_output") else 0,
                 "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
+                "sources": self.sources.summary(), "attitude_stale": self.stats.attitude_stale,
                 "link_outages": self.linkwatch.outages, "link_lost": self.linkwatch.lost,
                 "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
+                "mode": self.gcs.mode.name if hasattr(self, "gcs") else None,
+                "camera_motion": dict(self.motion.counts) if self.motion is not None else None,
                 "stuck_matchers": self.fixes.stuck,
                 "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
-                "clock_source": self.clockmap.source, "healthy": self.output.health.healthy,
+                "clock_source": self.clockmap.source, "clock_speed": self.clockmap.speed(),
+                "healthy": self.output.health.healthy,
                 "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
                 "estimator": self._estimator_state()}
 

@@ -191,6 +191,13 @@ def odometry(mav: Any, sol: NavSolution, cfg: OutputConfig, roll: float, pitch: 
         quality)
 
 
+def named_value_float(mav: Any, time_boot_ms: int, name: str, value: float) -> Any:
+    """NAMED_VALUE_FLOAT (ground-station health, gcs.py): name cut to the field's 10 characters, a non-finite
+    value sent as -1, time_boot_ms the autopilot's clock (ms, 0 when unknown)."""
+    v = float(value) if math.isfinite(value) else -1.0
+    return mav.named_value_float_encode(max(0, min(int(time_boot_ms), 2**32 - 1)), name.encode("ascii")[:10], v)
+
+
 def statustext(mav: Any, severity: int, text: str) -> Any:
     """STATUSTEXT, text truncated to the field's 50 bytes (prefixed 'TACO: ')."""
     raw = f"TACO: {text}".encode("ascii", "replace")[:50]

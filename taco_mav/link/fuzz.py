@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 import socket
 import threading
 import time
@@ -23,7 +24,7 @@ from typing import Any, Callable
 
 from taco_mav.config import Profile, profile_from_dict
 from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.fuzz_frames import MUTATIONS, AutopilotStream, Mutator, m
+from taco_mav.link.fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +38,10 @@ class FuzzOptions:
     episode each; warmup_steps / tail_steps: valid-only 10 ms steps before / after the fuzz; window: datagrams
     in flight at most; output_rate_hz: the daemon's output rate (more outputs checked per second);
     realtime_factor: autopilot seconds per wall second at most (None: as fast as the daemon reads);
-    mutations: the mutations drawn from (default: all of fuzz_frames.MUTATIONS)."""
+    mutations: the mutations drawn from (default: all of fuzz_frames.MUTATIONS); imu_message: the daemon's
+    link.imu_message (None: pinned to the episode's kind; "auto": chosen by the daemon from what arrives);
+    corrupt_imu_first: IMU messages that decode but are not valid samples (fuzz_frames.corrupt_imu, every IMU
+    kind), sent right after the first HEARTBEAT and before any valid IMU sample."""
 
     frames: int = 5000
     seed: int = 0
@@ -49,6 +53,8 @@ class FuzzOptions:
     catch_up_timeout_s: float = 5.0
     realtime_factor: float | None = 10.0
     mutations: tuple[str, ...] = MUTATIONS
+    imu_message: str | None = None
+    corrupt_imu_first: int = 0
 
 
 class _Catcher(logging.Handler):
@@ -98,7 +104,8 @@ class _Outputs:
 
 
 def fuzz_profile(imu_kind: str, output_rate_hz: float) -> Profile:
-    """The profile of one episode: emulator matcher (SIMSTATE truth), all three outputs, the IMU kind fixed."""
+    """The profile of one episode: emulator matcher (SIMSTATE truth), all three outputs, link.imu_message
+    `imu_kind` (a message name, or "auto")."""
     return profile_from_dict({"matcher": "emulator", "link": {"imu_message": imu_kind},
                               "output": {"messages": ["gps_input", "global_position_sensor", "odometry"],
                                          "rate_hz": output_rate_hz}})
@@ -113,7 +120,8 @@ class _Episode:
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
         port = _free_port()
-        self.daemon = Daemon(fuzz_profile(imu_kind, opt.output_rate_hz), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+        self.daemon = Daemon(fuzz_profile(opt.imu_message or imu_kind, opt.output_rate_hz),
+                             DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
         self.dest = ("127.0.0.1", port)
         self.stream = AutopilotStream(imu_kind)
         self.mutator = Mutator(self.stream, seed, opt.mutations)
@@ -214,9 +222,14 @@ def run_episode(imu_kind: str, frames: int, seed: int, opt: FuzzOptions) -> dict
         deadline = time.monotonic() + 10.0
         while d.link is None and time.monotonic() < deadline:
             time.sleep(0.01)
+        if opt.corrupt_imu_first:  # the autopilot is adopted first, then its IMU messages start corrupt
+            ep.send([ep.stream.pack(ep.stream.message("HEARTBEAT"))], True)
+            rng = random.Random(seed + 7)
+            for _ in range(opt.corrupt_imu_first):
+                ep.send([corrupt_imu(ep.stream, rng)], False)
         ep.valid_steps(opt.warmup_steps)
         anchored = _wait(lambda: d.loc is not None, 10.0, ep)
-        outputs_before = ep.outputs.by_type["GPS_INPUT"]
+        outputs_before, fix3_before = ep.outputs.by_type["GPS_INPUT"], ep.outputs.fix_types[3]
         for _ in range(frames):
             name, datagrams = ep.mutator.frame()
             ep.mutations[name] += 1
@@ -242,6 +255,7 @@ def run_episode(imu_kind: str, frames: int, seed: int, opt: FuzzOptions) -> dict
         "crashed": not alive or d.exit_code != 0 or not stopped, "escaped_exceptions": escaped,
         "mutations": dict(ep.mutations), "outputs": dict(ep.outputs.by_type),
         "gps_input_during_fuzz": ep.outputs.by_type["GPS_INPUT"] - outputs_before,
+        "gps_input_fix3_during_fuzz": ep.outputs.fix_types[3] - fix3_before,
         "fix_types": {str(k): v for k, v in ep.outputs.fix_types.items()},
         "nonfinite_output_fields": dict(ep.outputs.nonfinite), "designed_nan_fields": dict(ep.outputs.designed_nan),
         "out_of_range_output_fields": dict(ep.outputs.out_of_range), "sender_stalls": ep.stalls,
@@ -294,6 +308,8 @@ def run_fuzz(options: FuzzOptions = FuzzOptions(), progress: bool = False) -> di
         "logged_exceptions": dict(catcher.count),
         "all_anchored": all(e["anchored"] for e in episodes),
         "gps_input_during_fuzz": sum(e["gps_input_during_fuzz"] for e in episodes),
+        "gps_input_fix3_during_fuzz": sum(e["gps_input_fix3_during_fuzz"] for e in episodes),
+        "imu_sources": {e["imu_kind"]: e["summary"]["sources"]["imu"]["source"] for e in episodes},
         "reboots": sum(e["summary"]["reboots"] for e in episodes),
         "imu_samples": sum(e["summary"]["imu_samples"] for e in episodes),
         "rejected_by_reason": _by_reason(dict(rejected)), "rejected_inputs": dict(sorted(rejected.items())),

@@ -115,6 +115,32 @@ class AutopilotStream:
         return out
 
 
+IMU_KINDS = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+
+
+def corrupt_imu(stream: AutopilotStream, rng: random.Random) -> bytes:
+    """One IMU message of any kind that decodes but is not a valid sample: NaN/inf fields (HIGHRES_IMU),
+    accelerations or rates beyond the sensor's range, a zero timestamp, or every axis exactly zero; stamped
+    near the stream's time (the kind of message that must not choose the daemon's IMU source)."""
+    kind = rng.choice(IMU_KINDS)
+    us, ms, tx = int(stream.t * 1e6), int(stream.t * 1e3), stream.tx
+    how = rng.choice(("range", "zero_time", "all_zero") + (("nonfinite",) * 3 if kind == "HIGHRES_IMU" else ()))
+    if kind == "HIGHRES_IMU":
+        bad = rng.choice((math.nan, math.inf, -math.inf))
+        acc = {"nonfinite": (bad, 0.0, -G0), "range": (0.0, 0.0, -20.0 * G0), "zero_time": (0.0, 0.0, -G0),
+               "all_zero": (0.0, 0.0, 0.0)}[how]
+        gyr = (0.0, bad, 0.0) if how == "nonfinite" else (0.0, 0.0, 0.0)
+        msg = tx.highres_imu_encode(0 if how == "zero_time" else us, *acc, *gyr, 0.0, 0.0, 0.0, 1013.0, 0.0, 115.0,
+                                    25.0, 0x3F)
+    else:
+        acc = {"range": (0, 0, rng.choice((-32768, 32767))), "zero_time": (0, 0, -1000), "all_zero": (0, 0, 0)}[how]
+        gyr = (0, rng.choice((-32768, 32767)), 0) if how == "range" else (0, 0, 0)  # 32.8 rad/s: within range
+        t = 0 if how == "zero_time" else (us if kind == "RAW_IMU" else ms)
+        encode = getattr(tx, f"{kind.lower()}_encode")
+        msg = encode(t, *acc, *gyr, 0, 0, 0)
+    return stream.pack(msg)
+
+
 class Mutator:
     """Seeded fuzz frames around a stream: `frame()` -> (mutation name, datagrams). `recent` holds the last valid
     frames sent (the caller appends them) for duplicates and late (reordered) arrivals."""

@@ -45,3 +45,4 @@ class DaemonStats:
     dropped: Counter[str] = field(default_factory=Counter)
     reboots: int = 0
     imu_gaps: int = 0
+    attitude_stale: int = 0  # IMU samples paired with an attitude older than imu_source.ATTITUDE_STALE_S

@@ -40,6 +40,7 @@ class OutputStage:
         self.compass_sigma_rad = profile.ukf.compass_sigma_rad
         self.health = Health(cfg.degrade_accuracy_m, cfg.recover_accuracy_m, cfg.stall_s)
         self._on_change = on_change
+        self.last_hacc_m: float | None = None  # horizontal 1-sigma of the last solution sent, m (gcs.py: taco_hacc)
 
     def messages(self, est: Estimate, imu_age_s: float, origin: encoders.Origin, mav: Any, utc_s: float,
                  autopilot_now_s: float | None, target_system: int, attitude: AttitudeReading | None,
@@ -56,6 +57,7 @@ class OutputStage:
         if change:
             self._on_change(change, self.health.healthy)
         sol = encoders.solution(est, origin, self.cfg, self.health.healthy)
+        self.last_hacc_m = min(sol.sigma_h, 1000.0) if math.isfinite(sol.sigma_h) else 1000.0
         out = []
         for name in self.cfg.messages:
             if name == "gps_input":

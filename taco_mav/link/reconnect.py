@@ -11,6 +11,13 @@ the old socket.
 - `pace_tcp_reconnect` changes one connection so that a reconnect never blocks: a non-blocking connect is
   started at most once per `interval_s`, polled at each later `recv`/`write`, and given up after
   `connect_timeout_s`; meanwhile `recv` returns no data and `write` drops the packet (as a cut radio would).
+
+Serial (`mavserial`, pyserial): a USB adapter that is unplugged makes every read raise (EIO, or "readiness to
+read but no data") and every write fail; pymavlink then prints, retries inside `write` only, and leaves the
+dead descriptor for select(). `pace_serial_reconnect` closes the port at the first error (one warning, no
+traceback), drops writes and reads nothing while it is gone, and tries to reopen the same path at the same
+baud at most once per `interval_s`; a device that comes back (the same /dev name, or a udev symlink such as
+/dev/serial/by-id/...) is used again, and the daemon's link watch reports the outage as for UDP or TCP.
 """
 
 from __future__ import annotations
@@ -122,4 +129,80 @@ def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], f
             return b""
 
     conn.reconnect, conn.recv = reconnect, recv
+    return True
+
+
+def _open_serial(device: str, baud: int) -> Any:
+    """A pyserial port as pymavlink's mavserial opens one (non-blocking reads, no flow control): opened at
+    1200 baud, then set to `baud` (works around kernels that otherwise keep the old rate)."""
+    import serial
+
+    port = serial.Serial(device, 1200, timeout=0, dsrdtr=False, rtscts=False, xonxoff=False)
+    port.baudrate = baud
+    return port
+
+
+def pace_serial_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic) -> bool:
+    """Make `conn` (a pymavlink serial connection) survive its device vanishing: on the first read or write
+    error the port is closed and `conn.fd` set to None; while it is gone `recv` returns b"" and `write` drops
+    the packet; every `interval_s` seconds of `clock` the device path is opened again at `conn.baud`. Returns
+    False (and changes nothing) for any other connection."""
+    if not isinstance(conn, mavutil.mavserial):
+        return False
+    import serial
+
+    errors = (OSError, serial.SerialException, ValueError, TypeError)  # pyserial raises TypeError on a closed fd
+    state = {"since": math.nan, "last_try": -math.inf}
+    baud = int(conn.baud)
+
+    def lost(exc: BaseException) -> None:
+        if conn.portdead:
+            return
+        log.warning("serial %s lost (%s): reopening it every %.0f s", conn.device, exc, interval_s)
+        conn.portdead, conn.fd = True, None  # select() must not watch a dead (or reused) descriptor
+        state["since"] = clock()
+        try:
+            conn.port.close()
+        except errors:
+            pass
+        mav = conn.mav  # a frame cut short by the unplug is never joined to the first bytes after it
+        mav.buf, mav.buf_index, mav.expected_length = bytearray(), 0, mavutil.mavlink.HEADER_LEN_V1 + 2
+
+    def reopen() -> bool:
+        now = clock()
+        if now - state["last_try"] < interval_s:
+            return False
+        state["last_try"] = now
+        try:
+            port = _open_serial(conn.device, baud)
+        except errors as exc:
+            log.debug("serial %s: not back yet (%s)", conn.device, exc)
+            return False
+        conn.port, conn.fd, conn.portdead = port, port.fileno(), False
+        if conn.rtscts:
+            conn.set_rtscts(True)
+        log.warning("serial %s reopened at %d baud after %.1f s", conn.device, baud, now - state["since"])
+        return True
+
+    receive = conn.recv
+
+    def recv(n: int | None = None) -> bytes:
+        if conn.portdead and not reopen():
+            return b""
+        try:
+            return receive(n)
+        except errors as exc:
+            lost(exc)
+            return b""
+
+    def write(buf: bytes) -> int:
+        if conn.portdead:
+            return -1  # dropped, as a cut radio would
+        try:
+            return conn.port.write(bytes(buf))
+        except errors as exc:
+            lost(exc)
+            return -1
+
+    conn.recv, conn.write, conn.reset = recv, write, reopen
     return True

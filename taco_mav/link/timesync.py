@@ -8,18 +8,84 @@ autopilot_s = companion_s + offset. Sources, best first:
 - IMU timestamps on arrival (same bias), until anything better is heard.
 For the arrival-time sources the largest recent (autopilot - arrival) is kept: latency only ever makes the
 offset look smaller.
+
+The offset alone assumes both clocks run at the same rate. A simulated autopilot may run faster than real time
+(SITL --speedup, `taco-mav sim --speed N` without lockstep): `ClockRate` estimates autopilot seconds per
+companion second from the IMU stamps against their arrival (`ClockMap.speed`), so outputs can be paced on the
+autopilot's clock (`scheduler.AutopilotPeriodic`). On a real vehicle it reads exactly 1.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import deque
 from typing import Callable
 
+import numpy as np
+
 log = logging.getLogger(__name__)
 
 _PRIORITY = {"timesync": 3, "system_time": 2, "imu": 1}
+
+
+class ClockRate:
+    """Autopilot seconds per companion second, from (arrival on the companion clock, autopilot stamp) pairs of
+    the accepted IMU samples over the last `window_s` companion seconds (pairs `min_step_s` apart; of a batch
+    handled at once, the newest stamp).
+
+    The slope is fitted by least squares, then again on the pairs at or above the first line (the ones that
+    arrived with the least latency), so late batches do not tilt it. None until the pairs span `min_span_s`, or
+    when the slope is outside [min_speed, max_speed] (clocks that jumped); exactly 1.0 when within `snap` of 1
+    (a real autopilot: wall pacing unchanged). Recomputed at most every `refit_s` companion seconds."""
+
+    def __init__(self, window_s: float = 5.0, min_span_s: float = 0.1, min_step_s: float = 0.01,
+                 snap: float = 0.01, refit_s: float = 0.1, min_speed: float = 0.02, max_speed: float = 100.0) -> None:
+        self.window_s, self.min_span_s, self.min_step_s = window_s, min_span_s, min_step_s
+        self.snap, self.refit_s, self.min_speed, self.max_speed = snap, refit_s, min_speed, max_speed
+        self._pairs: deque[tuple[float, float]] = deque()
+        self._value: float | None = None
+        self._fitted_at = -math.inf
+        self._dirty = False
+
+    def reset(self) -> None:
+        self._pairs.clear()
+        self._value, self._fitted_at, self._dirty = None, -math.inf, False
+
+    def add(self, t_companion: float, t_autopilot: float) -> None:
+        """One accepted sample: autopilot stamp t_autopilot (s) handled at t_companion (s)."""
+        q = self._pairs
+        if len(q) >= 2 and t_companion - q[-2][0] < self.min_step_s:
+            q[-1] = (t_companion, t_autopilot)  # the newest of a batch: it waited least
+        else:
+            q.append((t_companion, t_autopilot))
+        while q and t_companion - q[0][0] > self.window_s:
+            q.popleft()
+        self._dirty = True
+
+    def value(self, now: float) -> float | None:
+        """The current estimate (see the class docstring); `now`: companion s."""
+        if self._dirty and now - self._fitted_at >= self.refit_s:
+            self._value, self._fitted_at, self._dirty = self._fit(), now, False
+        return self._value
+
+    def _fit(self) -> float | None:
+        if len(self._pairs) < 3:
+            return None
+        c, a = np.array(self._pairs).T
+        if c[-1] - c[0] < self.min_span_s:
+            return None
+        c = c - c[0]
+        a = a - a[0]
+        slope, icpt = np.polyfit(c, a, 1)
+        upper = a - (slope * c + icpt) >= 0.0
+        if upper.sum() >= 3 and np.ptp(c[upper]) >= 0.5 * self.min_span_s:
+            slope = np.polyfit(c[upper], a[upper], 1)[0]
+        slope = float(slope)
+        if not (math.isfinite(slope) and self.min_speed <= slope <= self.max_speed):
+            return None
+        return 1.0 if abs(slope - 1.0) <= self.snap else slope
 
 
 class ClockMap:
@@ -36,12 +102,14 @@ class ClockMap:
         self.stale_s = stale_s
         self._samples: dict[str, deque[tuple[float, float, float]]] = {k: deque(maxlen=window) for k in _PRIORITY}
         self.last_rtt_s: float | None = None
+        self.rate = ClockRate()
 
     def reset(self) -> None:
         """Forget everything (autopilot reboot)."""
         for q in self._samples.values():
             q.clear()
         self.last_rtt_s = None
+        self.rate.reset()
 
     # ---------------------------------------------------------------- samples
     def request_ns(self) -> int:
@@ -69,6 +137,7 @@ class ClockMap:
         """A timestamped input (IMU) arrived now."""
         now = self.clock()
         self._samples["imu"].append((now, t_autopilot - now, 0.0))
+        self.rate.add(now, t_autopilot)
 
     # ---------------------------------------------------------------- queries
     @property
@@ -94,6 +163,10 @@ class ClockMap:
         if name == "timesync":
             return min(q, key=lambda s: s[2])[1]
         return max(s[1] for s in q)
+
+    def speed(self) -> float | None:
+        """Autopilot seconds per companion second (`ClockRate`; 1.0 on a real vehicle), None while unknown."""
+        return self.rate.value(self.clock())
 
     def to_autopilot(self, t_companion: float) -> float | None:
         """Companion monotonic seconds -> autopilot seconds (None before any sample)."""

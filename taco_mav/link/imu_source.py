@@ -1,0 +1,158 @@
+"""Which input stream feeds the estimator when the autopilot sends several of one kind: IMU (RAW_IMU,
+HIGHRES_IMU, SCALED_IMU, SCALED_IMU2, SCALED_IMU3) and attitude (ATTITUDE, ATTITUDE_QUATERNION).
+
+`SourceSelector` chooses by the first *valid* sample (one the decoders accept: finite, within physical range,
+stamped), never by the first message that parses, so one corrupt message of another type arriving first
+cannot lock the daemon onto a stream that never delivers. When the chosen stream has given nothing valid for
+`timeout_s` seconds (companion clock) and another one delivers, the selector moves to it and says so (the
+daemon logs, counts and writes an event). A pinned source (`link.imu_message`) is never left.
+
+`attitude_quaternion` decodes ATTITUDE_QUATERNION (w, x, y, z: the rotation from NED to body FRD; body rates
+FRD rad/s; time_boot_ms) into the same `AttitudeReading` (ZYX Euler roll, pitch, yaw, NED radians) as ATTITUDE.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from taco_mav.link.decoders import IMU_MESSAGES, MAX_GYRO, AttitudeReading, Decoders, ImuReading, euler_rates
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ATTITUDE_MESSAGES", "ATTITUDE_STALE_S", "InputSources", "SOURCE_TIMEOUT_S", "SourceSelector", "Switch",
+           "attitude_quaternion"]
+
+ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")
+SOURCE_TIMEOUT_S = 1.0  # s (companion clock) without a valid sample from the chosen source before another is taken
+ATTITUDE_STALE_S = 1.0  # autopilot s: an IMU sample paired with an attitude this much older is counted stale
+QUAT_NORM_TOL = 0.1  # |q| outside 1 +- this is not a rotation (corrupt): refused
+
+
+@dataclass(frozen=True)
+class Switch:
+    """A change of source: `old` (None at the first choice) -> `new`; silent_s: how long `old` had given
+    nothing valid, s (0 at the first choice)."""
+
+    old: str | None
+    new: str
+    silent_s: float
+
+
+class SourceSelector:
+    """Chooses one of `kinds` (message names) by the first valid sample and falls back after `timeout_s`.
+
+    pinned: a name of `kinds` to use whatever happens (None: choose). `offer(kind, valid, now)` is called for
+    every message of `kinds` (valid: the decoders accepted it; now: companion s) and says whether to use this
+    sample; a change of source is then in `take_switch()`. `switches` counts fallbacks (not the first choice).
+    """
+
+    def __init__(self, kinds: tuple[str, ...], pinned: str | None = None, timeout_s: float = SOURCE_TIMEOUT_S) -> None:
+        if pinned is not None and pinned not in kinds:
+            raise ValueError(f"pinned source {pinned!r} is not one of {kinds}")
+        self.kinds, self.pinned, self.timeout_s = kinds, pinned, timeout_s
+        self.current: str | None = pinned
+        self.switches = 0
+        self.invalid: dict[str, int] = {}  # per kind: samples refused by the decoders
+        self._last_valid: dict[str, float] = {}
+        self._chosen_at = -math.inf
+        self._switch: Switch | None = None
+
+    def offer(self, kind: str, valid: bool, now: float) -> bool:
+        """One message of `kind` arrived at `now` (companion s); True when its sample is to be used."""
+        if not valid:
+            self.invalid[kind] = self.invalid.get(kind, 0) + 1
+            return False
+        self._last_valid[kind] = now
+        if kind == self.current:
+            return True
+        if self.pinned is not None:
+            return False
+        if self.current is None:
+            self._take(kind, now, 0.0)
+            return True
+        silent = now - max(self._last_valid.get(self.current, -math.inf), self._chosen_at)
+        if silent > self.timeout_s:
+            self.switches += 1
+            self._take(kind, now, silent)
+            return True
+        return False
+
+    def _take(self, kind: str, now: float, silent_s: float) -> None:
+        self._switch = Switch(self.current, kind, silent_s)
+        self.current, self._chosen_at = kind, now
+
+    def take_switch(self) -> Switch | None:
+        """The change of source since the last call (None: none)."""
+        out, self._switch = self._switch, None
+        return out
+
+    def silent_s(self, now: float) -> float:
+        """Seconds (companion) since the chosen source last gave a valid sample (inf before any)."""
+        if self.current is None:
+            return math.inf
+        return now - self._last_valid.get(self.current, -math.inf)
+
+    def summary(self) -> dict[str, Any]:
+        return {"source": self.current, "switches": self.switches, "invalid": dict(self.invalid)}
+
+
+def attitude_quaternion(msg: Any, decoders: Decoders) -> AttitudeReading | None:
+    """ATTITUDE_QUATERNION -> AttitudeReading (ZYX Euler, NED radians; Euler rates from the FRD body rates), or
+    None (counted in decoders.rejected as ATTITUDE_QUATERNION:<reason>) when not finite or not a rotation."""
+    kind = "ATTITUDE_QUATERNION"
+    q = [float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4)]
+    if not all(math.isfinite(v) for v in q):
+        decoders.reject(kind, "nonfinite")
+        return None
+    norm = math.sqrt(sum(v * v for v in q))
+    if not abs(norm - 1.0) <= QUAT_NORM_TOL:
+        decoders.reject(kind, "range")
+        return None
+    w, x, y, z = (v / norm for v in q)
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    body = (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed))
+    rates = (0.0, 0.0, 0.0)
+    if all(math.isfinite(v) for v in body) and max(abs(v) for v in body) <= MAX_GYRO:
+        rates = euler_rates(roll, pitch, *body)
+    else:
+        decoders.reject(kind, "rates")  # the angles are still used, without carrying them in time
+    return AttitudeReading(msg.time_boot_ms * 1e-3, roll, pitch, yaw, rates)
+
+
+class InputSources:
+    """The daemon's two selectors: `imu` over IMU_MESSAGES (pinned by `link.imu_message` unless "auto") and
+    `attitude` over ATTITUDE_MESSAGES. The readings come out decoded (SI units, autopilot seconds) or None
+    when the message is refused or not from the chosen source; `take_switches()` gives the changes since the
+    last call as ("imu" | "attitude", Switch)."""
+
+    def __init__(self, imu_message: str = "auto", timeout_s: float = SOURCE_TIMEOUT_S) -> None:
+        self.imu = SourceSelector(IMU_MESSAGES, None if imu_message == "auto" else imu_message, timeout_s)
+        self.attitude = SourceSelector(ATTITUDE_MESSAGES, None, timeout_s)
+
+    def imu_reading(self, msg: Any, decoders: Decoders, now: float) -> ImuReading | None:
+        """An IMU message arrived at `now` (companion s): its reading when it is to be integrated."""
+        kind = msg.get_type()
+        if kind == "RAW_IMU" and getattr(msg, "id", 0) != 0:  # a second IMU's RAW_IMU: not a source of ours
+            return None
+        if self.imu.pinned is not None and kind != self.imu.pinned:
+            return None
+        r = decoders.imu(msg)
+        return r if self.imu.offer(kind, r is not None, now) else None
+
+    def attitude_reading(self, msg: Any, decoders: Decoders, now: float) -> AttitudeReading | None:
+        """An ATTITUDE or ATTITUDE_QUATERNION arrived at `now` (companion s): its reading when it is to be used."""
+        kind = msg.get_type()
+        a = decoders.attitude(msg) if kind == "ATTITUDE" else attitude_quaternion(msg, decoders)
+        return a if self.attitude.offer(kind, a is not None, now) else None
+
+    def take_switches(self) -> list[tuple[str, Switch]]:
+        return [(name, sw) for name, sel in (("imu", self.imu), ("attitude", self.attitude))
+                if (sw := sel.take_switch()) is not None]
+
+    def summary(self) -> dict[str, Any]:
+        return {"imu": self.imu.summary(), "attitude": self.attitude.summary()}
