@@ -214,6 +214,7 @@ class GnssGuard:
         self.hold_anchor: Anchor | None = None  # the last trusted state while the receiver is held off
         self.rejections = 0
         self.camera_disagree = 0
+        self.external_flag: str | None = None  # set by another check (the camera's speed), taken at the next reading
         self.last: GuardVerdict | None = None
         self._window: deque[_Reading] = deque()
         self._recent: deque[tuple[float, np.ndarray, float, DrSnap]] = deque()  # t, z, sigma_h, snap
@@ -338,6 +339,9 @@ class GnssGuard:
         if self.camera_disagree >= p.camera_disagree_n:
             flags.append("camera")
             self.camera_disagree = 0
+        if self.external_flag is not None:
+            flags.append(self.external_flag.split(" ")[0])
+            self.external_flag = None
         figures = dict(nis=nis, ref_nis=ref_nis, window_nis=window_nis, window_limit=limit, drift=drift,
                        velocity=velocity, innovation_m=float(np.hypot(*nu)), reference=ref_name)
         if self.state is GuardState.OK:

@@ -27,8 +27,9 @@ from taco_mav.core.plus import (FixNoiseScale, bias_decay, consensus, cross_arm,
                                 process_noise_plus)
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.search import cross_offsets, fix_position
+from taco_mav.core.speed_check import SpeedCheck
 from taco_mav.core.stationary import StationaryDetector
-from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
+from taco_mav.core.types import Estimate, FixQuery, GnssFix, GnssOutcome, ImuSample, MatchResult, horizontal_sigma
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, joseph_update
 
 
@@ -67,6 +68,8 @@ class PlusLocaliser(Localiser):
         self._drive: tuple[float, bool] | None = None  # (t, the autopilot drives) from set_drive_command
         self._camera_moving_until = -math.inf  # the camera saw the ground move: no zero-velocity update
         self._camera_gated = 0  # camera speed measurements held off in a row
+        self._gnss_was_healthy = False  # the real GNSS was in use at the last trigger check
+        self.speed_check = SpeedCheck()  # GNSS ground speed against the camera's (spoofing, speed_check.py)
         self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
         self._last_answer_t = -math.inf
         self._zupt = False  # the last frame had a zero-velocity update
@@ -108,6 +111,7 @@ class PlusLocaliser(Localiser):
                 or dt <= 0.05 or sigma_m <= 0.0 or math.hypot(d_fwd, d_left) > 60.0 * dt:
             return "invalid"
         v_cam = math.copysign(math.hypot(d_fwd, d_left), d_fwd) / dt
+        self._check_gnss_speed(0.5 * (t0 + t1), v_cam, math.sqrt(2.0) * sigma_m / dt)
         if abs(v_cam) >= self.q.zupt_speed_max_mps:
             self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)
         v_est = self._speed_at(0.5 * (t0 + t1))
@@ -135,6 +139,25 @@ class PlusLocaliser(Localiser):
             self._feedback(self._history[-1])
         self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
         return "used"
+
+    def add_gnss(self, fix: GnssFix) -> GnssOutcome:
+        """As GnssFusion.add_gnss; the reading's ground speed also goes to the camera-speed check."""
+        out = super().add_gnss(fix)
+        v = fix.vel_en
+        if v is not None and out.reason != "nonfinite":
+            self.speed_check.add_gnss(fix.t, float(math.hypot(v[0], v[1])), float(fix.sigma_v_mps))
+        return out
+
+    def _check_gnss_speed(self, t: float, v_cam: float, sigma_white: float) -> None:
+        """The camera's speed against the receiver's (speed_check.py); a receiver whose speed departs from the
+        camera's is flagged to the GNSS guard (rejected at its next reading, held off while it disagrees)."""
+        g = self.gnss_guard
+        if g is None:
+            return
+        trusted = g.healthy_at(t) and not g.suspect
+        gap = self.speed_check.add_camera(t, v_cam, sigma_white, trusted)
+        if gap is not None:
+            g.external_flag = f"camera_speed {gap:+.2f} m/s"
 
     def _speed_at(self, t: float) -> float | None:
         """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
@@ -282,6 +305,8 @@ class PlusLocaliser(Localiser):
         arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
         if state is LockState.CONFIRMING:
             return "confirm", 0.0, arm
+        if self._gnss_handover():
+            return "handover", 0.0, arm
         if sig >= q.trigger_sigma_m:
             return "covariance", 0.0, arm
         # also at an apparent stop (one the IMU cannot tell from a smooth cruise must not silence the camera,
@@ -291,6 +316,15 @@ class PlusLocaliser(Localiser):
         if self.t - self._last_fix_t >= q.trigger_time_s and not (stopped and (self._zupt or self.still.stationary)):
             return "time", 0.0, arm
         return None
+
+    def _gnss_handover(self) -> bool:
+        """True once when the real GNSS that was in use is lost or held off: the camera at once, rather than
+        when the uncertainty has grown, takes over from the receiver's wandering position (issue 14)."""
+        g = self.gnss_guard
+        healthy = g is not None and g.healthy_at(self.t)
+        lost = self._gnss_was_healthy and not healthy
+        self._gnss_was_healthy = healthy
+        return lost
 
     def _inflate(self, sigma_m: float) -> None:
         """Lock lost: widen the position uncertainty by at least lost_sigma_min_m (and sigma_m), metres."""
