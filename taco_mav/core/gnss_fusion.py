@@ -190,11 +190,7 @@ class GnssFusion:
         pre_x, pre_y = float(self.ukf.x[0]), float(self.ukf.x[1])
         base.window, base.pre_xy = self._window, (pre_x, pre_y)
         later = [h for h in self._history if h.t > base.t]
-        for h in later:
-            c, s = math.cos(h.theta_start), math.sin(h.theta_start)
-            pre_x += c * h.inc.d_fwd - s * h.inc.d_left
-            pre_y += s * h.inc.d_fwd + c * h.inc.d_left
-            self._advance(h, pre_x, pre_y)
+        self._replay(later, pre_x, pre_y)
         dx, dy = self.pre.interval_displacement
         self.pre.reset_position(float(self.ukf.x[0]) + dx, float(self.ukf.x[1]) + dy)
         if self.record:

@@ -328,17 +328,23 @@ class Localiser(GnssFusion):
         pre_x, pre_y = float(tick.x[0]), float(tick.x[1])
         tick.window, tick.pre_xy = self._window, (pre_x, pre_y)
         later = [h for h in self._history if h.t > tick.t]
-        for h in later:
-            c, s = math.cos(h.theta_start), math.sin(h.theta_start)
-            pre_x += c * h.inc.d_fwd - s * h.inc.d_left
-            pre_y += s * h.inc.d_fwd + c * h.inc.d_left
-            self._advance(h, pre_x, pre_y)
+        pre_x, pre_y = self._replay(later, pre_x, pre_y)
         dx, dy = self.pre.interval_displacement
         self.pre.reset_position(pre_x + dx, pre_y + dy)
         if self.record:
             for h in [tick, *later]:
                 self._graph_x[h.node] = h.x[:3].copy()
         return nis
+
+    def _replay(self, later: list[_Tick], pre_x: float, pre_y: float) -> tuple[float, float]:
+        """Advance the history frames `later` again from the filter's current state, the dead-reckoned
+        position carried from (pre_x, pre_y) ENU m along their increments; returns where it ends."""
+        for h in later:
+            c, s = math.cos(h.theta_start), math.sin(h.theta_start)
+            pre_x += c * h.inc.d_fwd - s * h.inc.d_left
+            pre_y += s * h.inc.d_fwd + c * h.inc.d_left
+            self._advance(h, pre_x, pre_y)
+        return pre_x, pre_y
 
     def _reset_anchor(self) -> None:
         self._window = AnchorWindow()
