@@ -178,6 +178,9 @@ class PlusConfig:
     # (a 3 cm error in a 1 m mount height is 3 %), beside the correlation's own. Needs a camera.
     camera_speed: bool = True
     camera_speed_scale_sigma: float = field(default=0.03, metadata=_rng(0.0))
+    # a measurement moving sideways more than this (m) plus 30 % of its forward motion is refused: a wheeled
+    # vehicle barely slips, so it is a heading change the compass got wrong (SITL: an AHRS settling at boot)
+    camera_lateral_max_m: float = field(default=0.15, metadata=_rng(0.0))
     # Closed-loop safety guard (issue 19, core/imu_check.py): the estimate against the IMU-only track since the
     # last accepted fix; a disagreement beyond guard_k combined sigmas (and guard_floor_m) keeps the reported
     # variance at least the disagreement squared and holds zero-velocity updates off; guard_gate_misses

@@ -67,3 +67,15 @@ def test_camera_speed_bounds_the_speed_drift_of_a_noisy_imu():
     assert np.abs(speed[t > 5] - true[t > 5]).max() < 0.3
     assert err[-1] < 0.15 * err0[-1]  # along-track drift over 60 s without fixes
     assert 0.03 < float(loc.ukf.x[4]) < 0.15  # the accelerometer bias (0.1) partly learnt from the camera speed
+
+
+def test_sideways_motion_is_refused_not_taken_for_speed():
+    # SITL at boot: the AHRS yaw settles while the vehicle stands, so the derotated views appear to slide sideways
+    d = _sitl_like()
+    loc = make_localiser(ROVER, 0.0, heading=float(d.theta[0]))
+    for s in d.samples[:250]:  # 5 s standing
+        loc.add_imu(s)
+    before = loc.estimate().xy.copy()
+    assert loc.add_ground_motion(4.5, 4.8, 0.0, 0.6, 0.01) == "lateral"
+    assert loc.add_ground_motion(4.5, 4.8, 0.004, 0.05, 0.01) == "used"
+    assert np.linalg.norm(loc.estimate().xy - before) < 0.01 and abs(loc.estimate().speed) < 0.05

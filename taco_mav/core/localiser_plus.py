@@ -105,12 +105,17 @@ class PlusLocaliser(Localiser):
         interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
         second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
         99.9 %), and three in a row make a zero-velocity update since the last fix suspect. Returns "used",
-        "gated", "stale" (its frames are older than the history) or "invalid"."""
+        "gated", "lateral" (sideways motion: a heading change the compass got wrong), "stale" (its frames are
+        older than the history) or "invalid"."""
         dt = t1 - t0
         if not (math.isfinite(dt) and math.isfinite(d_fwd) and math.isfinite(d_left) and math.isfinite(sigma_m)) \
                 or dt <= 0.05 or sigma_m <= 0.0 or math.hypot(d_fwd, d_left) > 60.0 * dt:
             return "invalid"
-        v_cam = math.copysign(math.hypot(d_fwd, d_left), d_fwd) / dt
+        # A wheeled vehicle barely slips sideways: a large lateral motion is a heading change the compass got
+        # wrong between the frames (an AHRS still settling), and the forward part is not to be trusted either.
+        if abs(d_left) > self.q.camera_lateral_max_m + 0.3 * abs(d_fwd):
+            return "lateral"
+        v_cam = d_fwd / dt
         self._check_gnss_speed(0.5 * (t0 + t1), v_cam, math.sqrt(2.0) * sigma_m / dt)
         if abs(v_cam) >= self.q.zupt_speed_max_mps:
             self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)

@@ -54,6 +54,7 @@ class PlusParams:
     imu_accel_sigma_mps2: float = 0.05
     camera_speed: bool = True
     camera_speed_scale_sigma: float = 0.03
+    camera_lateral_max_m: float = 0.15
     # closed-loop safety guard (core/imu_check.py)
     guard: bool = True
     guard_k: float = 3.0

@@ -113,7 +113,10 @@ class MotionPipeline:
             except queue.Empty:
                 break
             if add is not None:
-                add(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
+                used = add(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
+                self.counts[f"used_{used}"] += 1
+                log.debug("camera motion %.2f-%.2f s: fwd %.3f left %.3f m (sigma %.3f, peak %.2f): %s", r.t0, r.t1,
+                          r.d_fwd, r.d_left, r.sigma_m, r.response, used)
         if add is None or loc.t < self._next:
             return
         self._next = loc.t + self.interval_s
