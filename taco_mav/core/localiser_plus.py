@@ -15,6 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
+from taco_mav.core.camera_speed import CameraSpeedMixin
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.gate import yaw_residual
 from taco_mav.core.gnss_fusion import GnssMeasurement
@@ -26,10 +27,11 @@ from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus import (FixNoiseScale, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
                                 process_noise_plus)
 from taco_mav.core.preintegration import wrap_angle
+from taco_mav.core.safety_guard import SafetyGuardMixin
 from taco_mav.core.search import cross_offsets, fix_position
 from taco_mav.core.speed_check import SpeedCheck
 from taco_mav.core.stationary import StationaryDetector
-from taco_mav.core.types import Estimate, FixQuery, GnssFix, GnssOutcome, ImuSample, MatchResult, horizontal_sigma
+from taco_mav.core.types import Estimate, ImuSample, MatchResult, horizontal_sigma
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, joseph_update
 
 
@@ -40,7 +42,7 @@ def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float 
     return cls(params, t0, x, y, heading, speed, record=record, heading_offset=heading_offset)
 
 
-class PlusLocaliser(Localiser):
+class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
     """taco+ mode. Construct through `make_localiser` (or directly with params.plus set)."""
 
     def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
@@ -98,86 +100,6 @@ class PlusLocaliser(Localiser):
         return (d is not None and d[1] and self.t - d[0] <= self.q.drive_command_timeout_s
                 or self.t <= self._camera_moving_until)
 
-    # ------------------------------------------------------------------ camera speed (issue 19)
-    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
-        """The camera's ground-plane translation between its frames at t0 and t1 (autopilot s), in frame 0's
-        body axes (metres, 1-sigma metres), as a speed measurement of the speed error x[3] at the middle of the
-        interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
-        second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
-        99.9 %), and three in a row make a zero-velocity update since the last fix suspect. Returns "used",
-        "gated", "lateral" (sideways motion: a heading change the compass got wrong), "stale" (its frames are
-        older than the history) or "invalid"."""
-        dt = t1 - t0
-        if not (math.isfinite(dt) and math.isfinite(d_fwd) and math.isfinite(d_left) and math.isfinite(sigma_m)) \
-                or dt <= 0.05 or sigma_m <= 0.0 or math.hypot(d_fwd, d_left) > 60.0 * dt:
-            return "invalid"
-        # A wheeled vehicle barely slips sideways: a large lateral motion is a heading change the compass got
-        # wrong between the frames (an AHRS still settling), and the forward part is not to be trusted either.
-        if abs(d_left) > self.q.camera_lateral_max_m + 0.3 * abs(d_fwd):
-            return "lateral"
-        v_cam = d_fwd / dt
-        self._check_gnss_speed(0.5 * (t0 + t1), v_cam, math.sqrt(2.0) * sigma_m / dt)
-        if abs(v_cam) >= self.q.zupt_speed_max_mps:
-            self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)
-        v_est = self._speed_at(0.5 * (t0 + t1))
-        if v_est is None:
-            return "stale"
-        var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
-        z = v_cam - v_est
-        P33 = float(self.ukf.P[3, 3])
-        if z * z > 10.83 * (P33 + var):
-            self._camera_gated += 1
-            if self._camera_gated >= 3:
-                self._distrust_zupt()
-                x, P = self.ukf.get_state()
-                P[3, 3] = max(P33, z * z)
-                self.ukf.set_state(x, P)
-            return "gated"
-        self._camera_gated = 0
-        before = self.ukf.x[:2].copy()
-        self.ukf.update_speed_error(float(self.ukf.x[3]) + z, math.sqrt(var))
-        if self.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
-            self.unaided.x += float(self.ukf.x[0] - before[0])
-            self.unaided.y += float(self.ukf.x[1] - before[1])
-        if self._history:  # a rewind to the last frame (a late fix) starts from the updated state
-            self._history[-1].x, self._history[-1].P = self.ukf.get_state()
-            self._feedback(self._history[-1])
-        self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
-        return "used"
-
-    def add_gnss(self, fix: GnssFix) -> GnssOutcome:
-        """As GnssFusion.add_gnss; the reading's ground speed also goes to the camera-speed check."""
-        out = super().add_gnss(fix)
-        v = fix.vel_en
-        if v is not None and out.reason != "nonfinite":
-            self.speed_check.add_gnss(fix.t, float(math.hypot(v[0], v[1])), float(fix.sigma_v_mps))
-        return out
-
-    def _check_gnss_speed(self, t: float, v_cam: float, sigma_white: float) -> None:
-        """The camera's speed against the receiver's (speed_check.py); a receiver whose speed departs from the
-        camera's is flagged to the GNSS guard (rejected at its next reading, held off while it disagrees)."""
-        g = self.gnss_guard
-        if g is None:
-            return
-        trusted = g.healthy_at(t) and not g.suspect
-        gap = self.speed_check.add_camera(t, v_cam, sigma_white, trusted)
-        if gap is not None:
-            g.external_flag = f"camera_speed {gap:+.2f} m/s"
-
-    def _speed_at(self, t: float) -> float | None:
-        """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
-        before the history."""
-        h = self._history
-        if not h or t < h[0].t - self.frame_dt:
-            return None
-        speeds = [(k.t, k.inc.speed_end + k.dv_fed) for k in h]
-        if t >= speeds[-1][0]:
-            return float(self.pre.speed)
-        for (ta, va), (tb, vb) in zip(speeds, speeds[1:]):
-            if ta <= t <= tb:
-                return va + (vb - va) * (t - ta) / max(tb - ta, 1e-9)
-        return speeds[0][1]
-
     def _open_tick(self, tick: _Tick) -> None:
         # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot tell from
         # zero. The speed the IMU may have lost since the speed was last observed (a fix, a stop) is what its
@@ -224,62 +146,6 @@ class PlusLocaliser(Localiser):
         self._feedback(tick)
         if self.q.guard:
             self._guard()
-
-    # ------------------------------------------------------------------ closed-loop safety guard
-    def _reset_unaided(self) -> None:
-        """Restart the IMU-only track at the current estimate (start-up, accepted fix)."""
-        est, P = super().estimate(), self.ukf.P
-        self.unaided.reset(self.t, (float(est.xy[0]), float(est.xy[1])), float(self.pre.speed), float(self.ukf.x[4]),
-                           horizontal_sigma(P), math.sqrt(max(float(P[3, 3]), 0.0)),
-                           math.sqrt(max(float(P[4, 4]), 0.0)))
-        self._guard_added = 0.0
-        self._zupt_since_reset = False
-        if self._guard_flagged:
-            self._guard_flagged = False
-            self.lock.note(self.t, "imu_agrees", "a fix settled the disagreement")
-
-    def _distrust_zupt(self) -> None:
-        """Evidence that the estimate lost the motion (the IMU-only track or the fixes disagree): hold
-        zero-velocity updates off, and when one happened since the last accepted fix while the IMU alone still
-        has the vehicle moving, give the IMU's speed back (a smooth cruise was taken for a stop) with a speed
-        variance that lets the next fixes correct it."""
-        self._zupt_holdoff_until = self.t + self.q.guard_zupt_holdoff_s
-        gap = self.unaided.v - float(self.pre.speed)
-        if self._zupt_since_reset and gap > 3.0 * self.unaided.sigma_v0 + self.q.zupt_speed_max_mps:
-            self.pre.speed = self.unaided.v
-            self._zupt_since_reset = False
-            x, P = self.ukf.get_state()
-            P[3, 3] = max(float(P[3, 3]), gap * gap)
-            self.ukf.set_state(x, P)
-            if self._history:
-                self._history[-1].P = P.copy()
-            self.lock.note(self.t, "speed_restored", f"a stop was wrong: speed {gap:+.1f} m/s from the IMU")
-
-    def _guard(self) -> None:
-        """Each frame: the estimate against the IMU-only track (module imu_check). On disagreement keep the
-        horizontal variance at least the disagreement squared, the speed variance at least the speed gap
-        squared, and hold zero-velocity updates off."""
-        est, P = super().estimate(), self.ukf.P
-        s0 = self.unaided.sigma_xy0
-        own = math.sqrt(max(horizontal_sigma(P) ** 2 - self._guard_added - s0 * s0, 0.0))
-        bad = self.unaided.check((float(est.xy[0]), float(est.xy[1])), float(est.speed), own)
-        if bad is None:
-            return
-        self._distrust_zupt()
-        x, P = self.ukf.get_state()
-        lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
-        add = max(bad.distance_m**2 - lo, 0.0)
-        P[:2, :2] += add * np.eye(2)
-        P[3, 3] = max(float(P[3, 3]), bad.speed_gap_mps**2)
-        self.ukf.set_state(x, P)
-        self._guard_added += add
-        if self._history:
-            self._history[-1].P = P.copy()
-        if not self._guard_flagged:
-            self._guard_flagged = True
-            self.lock.note(self.t, "imu_disagrees", f"estimate {bad.distance_m:.1f} m from the IMU-only track "
-                           f"after {bad.tau_s:.0f} s (1-sigma {bad.sigma_m:.1f} m, speed gap "
-                           f"{bad.speed_gap_mps:+.1f} m/s): accuracy widened")
 
     def _feedback(self, tick: _Tick) -> None:
         """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""

@@ -1,0 +1,108 @@
+"""taco+'s use of the camera's speed (issue 19): the ground-plane motion between two frames
+(`cvgl.ground_motion`, measured by the daemon's `link.motion`) as a measurement of the speed error, and the
+receiver's ground speed checked against it (`speed_check`, issue 14). A mixin of `PlusLocaliser`: it uses the
+filter's state (`ukf`, `pre`, `_history`, `q`) and the GNSS guard of `GnssFusion`.
+
+Speeds m/s, distances metres, times autopilot seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from taco_mav.core.types import GnssFix, GnssOutcome
+
+
+class CameraSpeedMixin:
+    """add_ground_motion / add_gnss for PlusLocaliser (which initialises the attributes used here)."""
+
+    q: Any
+    ukf: Any
+    pre: Any
+    unaided: Any
+    gnss_guard: Any
+    speed_check: Any
+    frame_dt: float
+    _history: Any
+    _camera_moving_until: float
+    _camera_gated: int
+
+    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
+        """The camera's ground-plane translation between its frames at t0 and t1 (autopilot s), in frame 0's
+        body axes (metres, 1-sigma metres), as a speed measurement of the speed error x[3] at the middle of the
+        interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
+        second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
+        99.9 %), and three in a row make a zero-velocity update since the last fix suspect. Returns "used",
+        "gated", "lateral" (sideways motion: a heading change the compass got wrong), "stale" (its frames are
+        older than the history) or "invalid"."""
+        dt = t1 - t0
+        if not (math.isfinite(dt) and math.isfinite(d_fwd) and math.isfinite(d_left) and math.isfinite(sigma_m)) \
+                or dt <= 0.05 or sigma_m <= 0.0 or math.hypot(d_fwd, d_left) > 60.0 * dt:
+            return "invalid"
+        # A wheeled vehicle barely slips sideways: a large lateral motion is a heading change the compass got
+        # wrong between the frames (an AHRS still settling), and the forward part is not to be trusted either.
+        if abs(d_left) > self.q.camera_lateral_max_m + 0.3 * abs(d_fwd):
+            return "lateral"
+        v_cam = d_fwd / dt
+        self._check_gnss_speed(0.5 * (t0 + t1), v_cam, math.sqrt(2.0) * sigma_m / dt)
+        if abs(v_cam) >= self.q.zupt_speed_max_mps:
+            self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)
+        v_est = self._speed_at(0.5 * (t0 + t1))
+        if v_est is None:
+            return "stale"
+        var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
+        z = v_cam - v_est
+        P33 = float(self.ukf.P[3, 3])
+        if z * z > 10.83 * (P33 + var):
+            self._camera_gated += 1
+            if self._camera_gated >= 3:
+                self._distrust_zupt()
+                x, P = self.ukf.get_state()
+                P[3, 3] = max(P33, z * z)
+                self.ukf.set_state(x, P)
+            return "gated"
+        self._camera_gated = 0
+        before = self.ukf.x[:2].copy()
+        self.ukf.update_speed_error(float(self.ukf.x[3]) + z, math.sqrt(var))
+        if self.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
+            self.unaided.x += float(self.ukf.x[0] - before[0])
+            self.unaided.y += float(self.ukf.x[1] - before[1])
+        if self._history:  # a rewind to the last frame (a late fix) starts from the updated state
+            self._history[-1].x, self._history[-1].P = self.ukf.get_state()
+            self._feedback(self._history[-1])
+        self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+        return "used"
+
+    def add_gnss(self, fix: GnssFix) -> GnssOutcome:
+        """As GnssFusion.add_gnss; the reading's ground speed also goes to the camera-speed check."""
+        out = super().add_gnss(fix)
+        v = fix.vel_en
+        if v is not None and out.reason != "nonfinite":
+            self.speed_check.add_gnss(fix.t, float(math.hypot(v[0], v[1])), float(fix.sigma_v_mps))
+        return out
+
+    def _check_gnss_speed(self, t: float, v_cam: float, sigma_white: float) -> None:
+        """The camera's speed against the receiver's (speed_check.py); a receiver whose speed departs from the
+        camera's is flagged to the GNSS guard (rejected at its next reading, held off while it disagrees)."""
+        g = self.gnss_guard
+        if g is None:
+            return
+        trusted = g.healthy_at(t) and not g.suspect
+        gap = self.speed_check.add_camera(t, v_cam, sigma_white, trusted)
+        if gap is not None:
+            g.external_flag = f"camera_speed {gap:+.2f} m/s"
+
+    def _speed_at(self, t: float) -> float | None:
+        """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
+        before the history."""
+        h = self._history
+        if not h or t < h[0].t - self.frame_dt:
+            return None
+        speeds = [(k.t, k.inc.speed_end + k.dv_fed) for k in h]
+        if t >= speeds[-1][0]:
+            return float(self.pre.speed)
+        for (ta, va), (tb, vb) in zip(speeds, speeds[1:]):
+            if ta <= t <= tb:
+                return va + (vb - va) * (t - ta) / max(tb - ta, 1e-9)
+        return speeds[0][1]
