@@ -210,18 +210,9 @@ def test_fuzzed_gnss_changes_only_counters(world: Path, tmp_path: Path, no_gnss)
     assert seq["ate_m"] <= 1.0 and abs(seq["ate_m"] - clean["ate_m"]) < 0.2
 
 
-def _needs_gnss_fusion() -> None:
-    from taco_mav.core.localiser import Localiser
-
-    if not hasattr(Localiser, "add_gnss"):
-        pytest.skip("the Localiser has no add_gnss yet")
-
-
 def test_gnss_fused_then_lost(world: Path, tmp_path: Path) -> None:
     """GNSS (GPS2, 1.5 m white + wandering bias) for 40 s, then NO_FIX: fused while there, `gnss_lost` and a
-    WARNING STATUSTEXT 1 s after it goes, and the denied span stays accurate (skipped while the Localiser has no
-    `add_gnss`)."""
-    _needs_gnss_fusion()
+    WARNING STATUSTEXT 1 s after it goes, and the denied span stays accurate."""
     seq, daemon, sim = _live(world, tmp_path, deny_after_s=40.0, gnss_noise_m=1.5, seed=2)
     lost = [e for e in _events(tmp_path) if e["event"] in GNSS_EVENTS]
     assert [(e["event"], e["instance"], e["reason"]) for e in lost] == [("gnss_lost", 2, "no_3d_fix")]
@@ -236,9 +227,7 @@ def test_gnss_fused_then_lost(world: Path, tmp_path: Path) -> None:
 
 def test_spoofing_reported(world: Path, tmp_path: Path) -> None:
     """From 30 s the receiver keeps a confident fix while dragged north-east at 0.5 m/s: `gnss_rejected` (once,
-    with the guard's figures) and a WARNING STATUSTEXT; our output stays within 5 m of the truth (skipped while
-    the Localiser has no `add_gnss`)."""
-    _needs_gnss_fusion()
+    with the guard's figures) and a WARNING STATUSTEXT; our output stays within 5 m of the truth."""
     seq, daemon, sim = _live(world, tmp_path, deny_after_s=float("inf"), gnss_noise_m=1.5, seed=2,
                              spoof_after_s=30.0, spoof_drift_mps=0.5, spoof_bearing_deg=45.0)
     events = [e for e in _events(tmp_path) if e["event"] in GNSS_EVENTS]

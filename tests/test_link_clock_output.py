@@ -10,12 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taco_mav.config import load_profile
-from taco_mav.link.daemon import Daemon, DaemonOptions
 from taco_mav.link.scheduler import AutopilotPeriodic, Periodic
 from taco_mav.link.timesync import ClockMap, ClockRate
-from taco_mav.sim import Simulator
-from tests.sim_helpers import free_udp_port
+from tests.test_live import run_live
 
 
 def _feed(rate: ClockRate, speed: float, seconds: float, imu_hz: float = 100.0, latency_s: float = 0.003,
@@ -133,23 +130,11 @@ def test_sim_speed_5_without_lockstep(held_out_world: Path) -> None:
     """The simulator 5x faster than real time, free-running; the daemon on time.monotonic / time.time (not the
     simulator's clock), classical matcher on rendered frames: 5 Hz and ArduPilot's gap rules in autopilot time,
     ATE <= 5 m."""
-    port = free_udp_port()
-    sim = Simulator(held_out_world, f"udpout:127.0.0.1:{port}", speed=5.0, lockstep=False, duration_s=40.0,
-                    wait_companion_s=10.0, drain_s=0.3)
-    daemon = Daemon(load_profile("synthetic"), DaemonOptions(connect=f"udpin:127.0.0.1:{port}",
-                                                             camera=f"world:{held_out_world}"))
-    daemon.start()
-    try:
-        sim.start()
-        assert sim.join(timeout=120.0), "simulator did not finish"
-    finally:
-        daemon.stop()
-        daemon.join(5.0)
-    seq = sim.results()["sequences"][sim.drive.name]
-    speed = daemon.clockmap.speed()
-    assert speed == pytest.approx(5.0, rel=0.01)
+    seq, summary = run_live(held_out_world, "synthetic", speed=5.0, camera=f"world:{held_out_world}",
+                            duration_s=40.0, sim_clock=False)
+    assert summary["clock_speed"] == pytest.approx(5.0, rel=0.01)
     assert seq["gps_input_rate_hz"] == pytest.approx(5.0, rel=0.02), seq["gps_input_rate_hz"]
     assert seq["gps_input_interval_avg_ms"] < 215.0 and seq["consecutive_gaps_over_245ms"] == 0
     assert seq["fix_type_counts"].get("3", 0) >= 0.95 * seq["gps_input_count"]
     assert seq["ate_m"] <= 5.0
-    assert daemon.summary()["fixes"].get("accepted", 0) >= 5
+    assert summary["fixes"].get("accepted", 0) >= 5

@@ -21,10 +21,11 @@ DRIVE_0005 = ("2011_09_26", "2011_09_26_drive_0005_sync")
 
 def run_live(drive: Path, profile: str, *, speed: float, camera: str | None = None, matcher: str | None = None,
              lockstep: bool = False, duration_s: float | None = None, latency_s: float = 0.0,
-             log_dir: Path | None = None, estimator: str = "paper", overrides: dict[str, Any] | None = None
-             ) -> tuple[dict[str, Any], dict[str, Any]]:
+             log_dir: Path | None = None, estimator: str = "paper", overrides: dict[str, Any] | None = None,
+             sim_clock: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
     """Play `drive` to an in-process daemon; returns (the drive's results.json entry, the daemon summary).
-    overrides: dotted profile keys replaced (e.g. {"plus.camera_speed": False})."""
+    overrides: dotted profile keys replaced (e.g. {"plus.camera_speed": False}); sim_clock: the daemon runs on
+    the simulator's clock (False: on time.monotonic / time.time, as beside a free-running autopilot)."""
     port = free_udp_port()
     sim = Simulator(drive, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=lockstep, duration_s=duration_s,
                     wait_companion_s=10.0, drain_s=0.3)
@@ -35,7 +36,7 @@ def run_live(drive: Path, profile: str, *, speed: float, camera: str | None = No
         prof = replace_in(prof, key, value)
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=camera, matcher_latency_s=latency_s,
                                         log_dir=log_dir, estimator=Estimator(estimator)),
-                    clock=sim.clock, wall_clock=sim.utc_now)
+                    **({"clock": sim.clock, "wall_clock": sim.utc_now} if sim_clock else {}))
     daemon.start()
     try:
         sim.start()

@@ -416,7 +416,7 @@ class Daemon:
 
     def _on_gnss(self, msg: Any) -> None:
         """GPS_RAW_INT / GPS2_RAW: a real instance's 3D fix offers the origin, then goes to the Localiser
-        (`add_gnss`, when it has one); our own instance's echo is only counted (`GnssTracker`)."""
+        (`add_gnss`); our own instance's echo is only counted (`GnssTracker`)."""
         instance, now = GNSS_MESSAGES[msg.get_type()], self.clock()
         reading = self.decoders.gnss(msg) if self.gnss.is_real(instance) else None
         r, events = self.gnss.on_message(instance, reading, int(msg.fix_type), now, self.origin)
@@ -430,10 +430,9 @@ class Daemon:
         if self.loc is None:
             self._start_from_gnss(r)
             return
-        add_gnss = getattr(self.loc, "add_gnss", None)
         fix = self.gnss.fix(r, self.origin, self.last_imu.t if self.last_imu is not None else None)
-        if add_gnss is not None and fix is not None:
-            self._gnss_events(self.gnss.outcome(add_gnss(fix), now))
+        if fix is not None:
+            self._gnss_events(self.gnss.outcome(self.loc.add_gnss(fix), now))
 
     def _gnss_events(self, events: list[GnssEvent]) -> None:
         for e in events:
