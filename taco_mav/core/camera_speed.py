@@ -27,6 +27,8 @@ class CameraSpeedMixin:
     _history: Any
     _camera_moving_until: float
     _camera_gated: int
+    _distrust_zupt: Any  # SafetyGuardMixin
+    _speed_variance_at_least: Any
 
     def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
         """The camera's ground-plane translation between its frames at t0 and t1 (autopilot s), in frame 0's
@@ -58,9 +60,7 @@ class CameraSpeedMixin:
             self._camera_gated += 1
             if self._camera_gated >= 3:
                 self._distrust_zupt()
-                x, P = self.ukf.get_state()
-                P[3, 3] = max(P33, z * z)
-                self.ukf.set_state(x, P)
+                self._speed_variance_at_least(z * z)
             return "gated"
         self._camera_gated = 0
         before = self.ukf.x[:2].copy()

@@ -53,12 +53,17 @@ class SafetyGuardMixin:
         if self._zupt_since_reset and gap > 3.0 * self.unaided.sigma_v0 + self.q.zupt_speed_max_mps:
             self.pre.speed = self.unaided.v
             self._zupt_since_reset = False
-            x, P = self.ukf.get_state()
-            P[3, 3] = max(float(P[3, 3]), gap * gap)
-            self.ukf.set_state(x, P)
-            if self._history:
-                self._history[-1].P = P.copy()
+            self._speed_variance_at_least(gap * gap)
             self.lock.note(self.t, "speed_restored", f"a stop was wrong: speed {gap:+.1f} m/s from the IMU")
+
+    def _speed_variance_at_least(self, var: float) -> None:
+        """Raise the speed-error variance to at least `var` ((m/s)^2), in the filter and in the last history
+        frame (a rewind there starts from it)."""
+        x, P = self.ukf.get_state()
+        P[3, 3] = max(float(P[3, 3]), var)
+        self.ukf.set_state(x, P)
+        if self._history:
+            self._history[-1].P = P.copy()
 
     def _guard(self) -> None:
         """Each frame: the estimate against the IMU-only track (module imu_check). On disagreement keep the
@@ -75,11 +80,9 @@ class SafetyGuardMixin:
         lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
         add = max(bad.distance_m**2 - lo, 0.0)
         P[:2, :2] += add * np.eye(2)
-        P[3, 3] = max(float(P[3, 3]), bad.speed_gap_mps**2)
         self.ukf.set_state(x, P)
         self._guard_added += add
-        if self._history:
-            self._history[-1].P = P.copy()
+        self._speed_variance_at_least(bad.speed_gap_mps**2)
         if not self._guard_flagged:
             self._guard_flagged = True
             self.lock.note(self.t, "imu_disagrees", f"estimate {bad.distance_m:.1f} m from the IMU-only track "
