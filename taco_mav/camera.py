@@ -173,7 +173,7 @@ class FolderSource:
     noiseless = False
 
     def __init__(self, folder: str | Path, offset_s: float = 0.0) -> None:
-        from taco_mav.datasets.kitti_io import read_timestamps
+        from taco_mav.timestamps import read_timestamps
 
         folder = Path(folder)
         if (folder / "image_02").is_dir():
@@ -239,6 +239,7 @@ class WorldSource:
         import rasterio
 
         from taco_mav.datasets.synthetic.render import GroundRenderer, LensRenderer
+        from taco_mav.datasets.synthetic.world3d import LensRenderer3D, WorldRenderer3D, world_is_3d
         from taco_mav.geo import UtmProjector
 
         self.mosaic_path = world_mosaic(Path(world_dir))
@@ -247,9 +248,16 @@ class WorldSource:
             transform, epsg = ds.transform, ds.crs.to_epsg()
         rgb = np.repeat(bands[:1], 3, axis=0) if bands.shape[0] < 3 else bands[:3]
         mosaic = np.ascontiguousarray(np.transpose(rgb, (1, 2, 0)))
-        self.renderer: GroundRenderer | LensRenderer = (
-            GroundRenderer(mosaic, transform, camera) if lens is None
-            else LensRenderer(mosaic, transform, lens, camera.mount_height_m, camera.pitch_rad))
+        self.is_3d = world_is_3d(Path(world_dir))
+        self._t0: float | None = None  # autopilot time of the first pose = drive time 0 (moving cars)
+        self.renderer: GroundRenderer | LensRenderer | WorldRenderer3D | LensRenderer3D
+        if self.is_3d:  # perspective, occlusion, the camera's own day (datasets/synthetic/world3d.py)
+            self.renderer = (WorldRenderer3D(Path(world_dir), camera) if lens is None else
+                             LensRenderer3D(Path(world_dir), lens, camera.mount_height_m, camera.pitch_rad))
+        else:
+            self.renderer = (
+                GroundRenderer(mosaic, transform, camera) if lens is None
+                else LensRenderer(mosaic, transform, lens, camera.mount_height_m, camera.pitch_rad))
         self._size = (camera.width, camera.height) if lens is None else (lens.width, lens.height)
         self.projector = UtmProjector(int(epsg))
         self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=ring)
@@ -261,15 +269,15 @@ class WorldSource:
         with self._lock:
             if self._poses and t < self._poses[-1][0]:
                 self._poses.clear()  # the autopilot clock went back (reboot)
+                self._t0 = None
+            if self._t0 is None:
+                self._t0 = t
             self._poses.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
 
     def frame_size(self) -> tuple[int, int] | None:
         return self._size
 
     def start(self) -> None:
-        pass
-
-    def close(self) -> None:
         pass
 
     def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
@@ -279,7 +287,13 @@ class WorldSource:
             best = min(self._poses, key=lambda p: abs(p[0] - t))
         if abs(best[0] - t) > max_gap_s:
             return None
+        if self.is_3d:
+            return best[0], self.renderer.render(np.array(best[1:]), best[0] - (self._t0 or 0.0))
         return best[0], self.renderer.render(np.array(best[1:]))
+
+    def close(self) -> None:
+        if self.is_3d:
+            self.renderer.close()  # the GL context and its thread
 
 
 class FrameGuard:

@@ -4,8 +4,11 @@ A small built-in synthetic world (fixed seed, ~1 km; reused when already in the 
 simulated ArduPilot rover (`taco_mav.sim.Simulator`) to the real daemon (`taco_mav.link.daemon.Daemon`, profile
 `synthetic`, classical matcher on frames rendered at the SIMSTATE pose), both as threads of this process talking
 MAVLink over UDP on 127.0.0.1, in lockstep at 8x real time (the daemon runs on the simulator's clock). GNSS is
-denied after the start-up fix. Writes `results.json` (the simulator's scoring), `trajectory.png` (truth vs the
-GPS_INPUT positions over the mosaic) and the daemon's logs (`daemon/`) into `out`.
+denied after the start-up fix. The world lives in `out/world` (shared by every run); each run writes into
+`out/<estimator>-<matcher>` (e.g. `taco_demo/paper-classical`, `taco_demo/taco+-classical`): `results.json` (the
+simulator's scoring), `trajectory.png` (truth vs the GPS_INPUT positions over the mosaic) and the daemon's
+logs (`daemon/`). A run folder that already holds results is refused unless `force`. Ctrl-C stops the drive;
+what was played is still scored and written (`DemoResult.interrupted`).
 """
 
 from __future__ import annotations
@@ -18,15 +21,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from taco_mav.errors import TacoError
+from taco_mav.checks import fresh_folder, number, output_dir
+from taco_mav.checks import world as check_world
+from taco_mav.errors import TacoError, UsageError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEMO_SEED", "DEMO_LENGTH_KM", "DEMO_SPEED", "DemoResult", "run_demo"]
+__all__ = ["DEMO_SEED", "DEMO_LENGTH_KM", "DEMO_SPEED", "DEMO_PROFILE", "DemoResult", "demo_run_dir", "run_demo"]
 
 DEMO_SEED = 7
 DEMO_LENGTH_KM = 1.0
 DEMO_SPEED = 8.0
+DEMO_PROFILE = "synthetic"
+RUN_FILES = ("results.json", "trajectory.png")  # with daemon/: what a run writes, removed first with force
 
 
 @dataclass(frozen=True)
@@ -40,6 +47,9 @@ class DemoResult:
     world_dir: Path
     wall_s: float
     daemon: dict[str, Any]
+    estimator: str = "paper"
+    matcher: str = "classical"
+    interrupted: bool = False
 
 
 def _free_port() -> int:
@@ -56,66 +66,110 @@ def demo_world(out: Path, progress: bool = True) -> Path:
     meta_path = world / "world.json"
     if meta_path.is_file():
         try:
-            meta = json.loads(meta_path.read_text())
-            if meta.get("seed") == DEMO_SEED and (world / meta["mosaic"]).is_file():
+            if json.loads(meta_path.read_text()).get("seed") == DEMO_SEED:
+                check_world(world, "--out")  # a world cut short (Ctrl-C, a full disk) is made again
                 log.info("reusing the demo world in %s", world)
                 return world
-        except (OSError, ValueError, KeyError):
-            pass
-        log.info("%s is not the demo world: generating it again", world)
+        except (TacoError, OSError, ValueError, AttributeError) as exc:
+            log.warning("%s is not a complete demo world (%s): generating it again", world, exc)
+        else:
+            log.info("%s is not the demo world: generating it again", world)
     log.info("generating the demo world (seed %d, ~%.1f km) in %s", DEMO_SEED, DEMO_LENGTH_KM, world)
     return build_world(world, seed=DEMO_SEED, length_km=DEMO_LENGTH_KM, progress=progress)
 
 
-def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None,
-             estimator: str = "paper") -> DemoResult:
-    """Run the demo into `out` (see the module docstring); returns what it measured and wrote."""
+def demo_run_dir(out: Path, estimator: str, matcher: str) -> Path:
+    """The folder a demo run writes into: named by what made it, `out/<estimator>-<matcher>`."""
+    return Path(out) / f"{estimator}-{matcher}"
+
+
+def _prepare(out: Path, speed: float, estimator: str, force: bool) -> tuple[Path, Any]:
+    """Every check before the world is built: speed, estimator, out writable, run folder fresh (or cleared
+    with force). Returns (run folder, profile)."""
+    import shutil
+
     from taco_mav.config import Estimator, load_profile
+
+    number(speed, "--speed", 0.0, 1000.0, low_open=True)
+    try:
+        Estimator(estimator)
+    except ValueError:
+        raise UsageError(f"--estimator {estimator}: unknown (known: {', '.join(e.value for e in Estimator)})") from None
+    profile = load_profile(DEMO_PROFILE)
+    output_dir(out)
+    run_dir = fresh_folder(demo_run_dir(out, estimator, profile.matcher), "results.json", force)
+    if force:
+        for name in RUN_FILES:
+            (run_dir / name).unlink(missing_ok=True)
+        shutil.rmtree(run_dir / "daemon", ignore_errors=True)
+    return output_dir(run_dir), profile
+
+
+def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None,
+             estimator: str = "paper", force: bool = False) -> DemoResult:
+    """Run the demo into `out` (see the module docstring); returns what it measured and wrote."""
+    from taco_mav.config import Estimator
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    run_dir, profile = _prepare(out, speed, estimator, force)
     world = demo_world(out, progress)
     start = time.monotonic()
     port = _free_port()
     sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=True, duration_s=duration_s,
                     wait_companion_s=20.0, drain_s=0.3)
-    daemon = Daemon(load_profile("synthetic"),
-                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=out / "daemon",
-                                  estimator=Estimator(estimator)),
+    daemon = Daemon(profile,
+                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}",
+                                  log_dir=run_dir / "daemon", estimator=Estimator(estimator)),
                     clock=sim.clock, wall_clock=sim.utc_now)
+    interrupted = False
     daemon.start()
     try:
         sim.start()
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        _follow(sim, duration_s, progress)
+    except KeyboardInterrupt:
+        interrupted = True
+        log.warning("interrupted: scoring what was played")
+        sim.stop()
+        sim.join(timeout=5.0)
+    finally:
+        daemon.stop()
+        daemon.join(10.0)
+    if sim.monitor.updates == []:
+        if interrupted:
+            raise KeyboardInterrupt
+        if daemon.exit_code is None:
+            raise TacoError("the daemon produced no GPS_INPUT (run with -v to see its log)")
+    doc = sim.results()
+    results_path = write_results(doc, run_dir)
+    seq = doc["sequences"][sim.drive.name]
+    ate = seq["ate_m"] if seq["ate_m"] is not None else float("nan")
+    plot_path = plot_gps_input(sim.drive, sim.monitor.updates, sim.play_start or 0.0, run_dir / "trajectory.png",
+                               mosaic=sim.drive.world_dir / json.loads((world / "world.json").read_text())["mosaic"],
+                               title=f"taco-mav demo ({estimator}, {profile.matcher} matcher): ATE {ate:.2f} m over "
+                                     f"{seq['length_km']:.2f} km, GNSS denied after the start")
+    return DemoResult(drive=sim.drive.name, results=seq, results_path=results_path, plot_path=plot_path,
+                      world_dir=world, wall_s=time.monotonic() - start, daemon=daemon.summary(),
+                      estimator=estimator, matcher=profile.matcher, interrupted=interrupted)
 
-            bar = tqdm(total=round(sim.drive.duration_s if duration_s is None else min(duration_s, sim.drive.duration_s)),
-                       desc="demo drive", unit="s")
+
+def _follow(sim: Any, duration_s: float | None, progress: bool) -> None:
+    """Wait for the simulator to finish, with a bar of drive seconds played when `progress`."""
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        total = sim.drive.duration_s if duration_s is None else min(duration_s, sim.drive.duration_s)
+        bar = tqdm(total=round(total), desc="demo drive", unit="s")
+    try:
         while not sim.join(timeout=0.5):
             if bar is not None and sim.play_start is not None:
                 bar.n = min(bar.total, int(sim.clock.now() - sim.play_start))
                 bar.refresh()
         if bar is not None:
             bar.n = bar.total
-            bar.close()
-    except KeyboardInterrupt:
-        sim.stop()
-        sim.join(timeout=5.0)
     finally:
-        daemon.stop()
-        daemon.join(10.0)
-    if daemon.exit_code is None and sim.monitor.updates == []:
-        raise TacoError("the daemon produced no GPS_INPUT (see the log above)")
-    doc = sim.results()
-    results_path = write_results(doc, out)
-    seq = doc["sequences"][sim.drive.name]
-    plot_path = plot_gps_input(sim.drive, sim.monitor.updates, sim.play_start or 0.0, out / "trajectory.png",
-                               mosaic=sim.drive.world_dir / json.loads((world / "world.json").read_text())["mosaic"],
-                               title=f"taco-mav demo: ATE {seq['ate_m'] or float('nan'):.2f} m over "
-                                     f"{seq['length_km']:.2f} km, GNSS denied after the start")
-    return DemoResult(drive=sim.drive.name, results=seq, results_path=results_path, plot_path=plot_path,
-                      world_dir=world, wall_s=time.monotonic() - start, daemon=daemon.summary())
+        if bar is not None:
+            bar.close()

@@ -1,12 +1,24 @@
-"""One error hierarchy for everything a user can get wrong; the CLI maps it to exit codes."""
+"""One error hierarchy for everything a user can get wrong; the CLI maps it to exit codes.
+
+Exit codes (every `taco-mav` command): 2 for usage and configuration errors (a bad argument, a missing input
+path, an unwritable output, an invalid profile), 1 for data and runtime errors (a malformed input file, a
+failure while working), 130 on Ctrl-C."""
 
 from __future__ import annotations
 
 
 class TacoError(Exception):
-    """Base of every error taco_mav raises on bad input; the message names file, key, field or message."""
+    """Base of every error taco_mav raises on bad input; the message names file, key, field or message.
+    A plain TacoError is a runtime error (exit code 1)."""
 
     exit_code: int = 1
+
+
+class UsageError(TacoError):
+    """A command-line argument is wrong: malformed, out of range, not in its allowed set, a missing input path
+    or an output that cannot be written (the message names the option and the value)."""
+
+    exit_code = 2
 
 
 class ConfigError(TacoError):
@@ -16,15 +28,16 @@ class ConfigError(TacoError):
 
 
 class DataError(TacoError):
-    """A dataset file is missing or malformed (names the file and, where known, the line)."""
+    """A dataset file is malformed or incomplete (names the file and, where known, the line): a data error,
+    exit code 1. A path the command line names that does not exist is a UsageError, checked before work."""
 
-    exit_code = 2
+    exit_code = 1
 
 
 class MapError(TacoError):
-    """A satellite map cannot serve a request (missing GeoTIFF, unsupported CRS)."""
+    """A satellite map cannot serve a request (unreadable GeoTIFF, unsupported CRS): exit code 1."""
 
-    exit_code = 2
+    exit_code = 1
 
 
 class OffMapError(MapError):

@@ -126,17 +126,17 @@ def test_calibrate_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     empty.mkdir()
     out = str(tmp_path / "c.yaml")
     rc, _, err = _run(["--images", str(empty), "--out", out], capsys)
-    assert rc == 2 and "no images" in err and str(empty) in err
+    assert rc == 1 and "no images" in err and str(empty) in err  # a data error: the folder holds no photos
     rc, _, err = _run(["--images", str(tmp_path / "missing"), "--out", out], capsys)
-    assert rc == 2 and "not a folder" in err
+    assert rc == 2 and "--images" in err and "no such folder" in err  # a usage error: a path that is not there
     few = _write_boards(tmp_path / "few", PLUMB_BOB, n=3)
     for i in range(2):
         cv2.imwrite(str(few / f"wall_{i}.png"), np.random.default_rng(i).integers(0, 255, (H, W), np.uint8))
     rc, _, err = _run(["--images", str(few), "--out", out], capsys)
-    assert rc == 2 and "found in 3 of 5 images" in err and "at least 5" in err, err
+    assert rc == 1 and "found in 3 of 5 images" in err and "at least 5" in err, err
     (few / "zz_broken.png").write_bytes(b"\x89PNG not really")
     rc, _, err = _run(["--images", str(few), "--out", out], capsys)
-    assert rc == 2 and "1 of 6 images unreadable: zz_broken.png" in err, err
+    assert rc == 1 and "1 of 6 images unreadable: zz_broken.png" in err, err
     rc, _, err = _run(["--images", str(few), "--board", "9by6", "--out", out], capsys)
     assert rc == 2 and "--board" in err
     assert not Path(out).exists()

@@ -13,7 +13,9 @@ from taco_mav.bench.classical import confidence_figures, confidence_samples, tex
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import GroundFrame
-from taco_mav.cvgl.classical import PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, ClassicalMatcher, psr_weight
+from taco_mav.cvgl.classical import (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, W_CALIBRATION, ClassicalMatcher,
+                                     psr_weight)
+from taco_mav.cvgl.gap import MapGap, alter_mosaic, occlude_frame
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
@@ -116,5 +118,63 @@ def test_chance_peaks_get_low_weight_and_correct_matches_high() -> None:
     figures = confidence_figures(samples)
     assert figures["classical_w_auc"] > 0.95
     assert figures["classical_w_median_chance"] == pytest.approx(np.median(samples["w"][samples["chance"]]))
-    # PSR and w agree: w is the logistic of the recorded PSR
-    np.testing.assert_allclose(samples["w"], [psr_weight(p) for p in samples["psr"]])
+    # PSR and w agree: w is the logistic of the recorded PSR, with the default descriptor's calibration
+    mid, scale = W_CALIBRATION[ClassicalMatcherConfig().descriptor]
+    np.testing.assert_allclose(samples["w"], [psr_weight(p, mid, scale) for p in samples["psr"]])
+
+
+# ---------------------------------------------------------------- appearance gap (issue 17)
+GAP_POSES = 12
+
+
+@pytest.fixture(scope="module")
+def gap_map(world, tmp_path_factory: pytest.TempPathFactory) -> SatelliteMap:
+    """The fixture's mosaic re-photographed: gain, gamma, autumn tint, moved shadows, 0.4 m/px, and a change of
+    the materials' brightness order (`MapGap(fold=0.45)`); camera frames stay rendered from the original."""
+    mosaic = textured_mosaic(7, SIZE, RES)
+    tif = Path(tmp_path_factory.mktemp("gap")) / "gap.tif"
+    write_geotiff(tif, alter_mosaic(mosaic, RES, seed=3, gap=MapGap(fold=0.45)), WEST, NORTH, RES)
+    smap = SatelliteMap(tif)
+    yield smap
+    smap.close()
+
+
+def _gap_errors(renderer, smap, matcher: ClassicalMatcher, occlude: bool = False) -> np.ndarray:
+    """Fix errors (m) of single-crop matches at GAP_POSES seeded poses, the vehicle 0-10 m from the crop
+    centre, the query heading within +-3 deg of the truth."""
+    rng = np.random.default_rng(5)
+    errors = []
+    for k in range(GAP_POSES):
+        true_en = np.array([WEST + rng.uniform(130, 170), NORTH - rng.uniform(130, 170)])
+        theta = rng.uniform(-math.pi, math.pi)
+        image = renderer.render((true_en[0], true_en[1], theta))
+        if occlude:
+            image = occlude_frame(image, renderer.camera, seed=100 + k)[0]
+        q = theta - math.radians(rng.uniform(-3, 3))
+        r, a = rng.uniform(0, 10), rng.uniform(-math.pi, math.pi)
+        fwd, left = r * math.cos(a), r * math.sin(a)
+        (res,) = matcher.match(GroundFrame(image, 0.0, renderer.camera), [_crop_at(smap, true_en, q, fwd, left)])
+        errors.append(float(np.hypot(*(res.t - [fwd, left]))))
+    return np.array(errors)
+
+
+def test_orientation_descriptor_survives_a_brightness_order_change_that_defeats_lcn(world, gap_map) -> None:
+    """Same frames, same crops of the re-photographed map: grey-level LCN correlates anti-correlated pixels and
+    fails; gradient orientation, blind to an edge's polarity, keeps sub-metre fixes on most of them (measured:
+    lcn median 17.6 m, none of 12 within 2 m; orientation median 0.71 m, 9 of 12 within 2 m)."""
+    renderer, _, _ = world
+    old = ClassicalMatcher(ClassicalMatcherConfig(descriptor="lcn", mask_vertical=False), renderer.camera)
+    new = ClassicalMatcher(ClassicalMatcherConfig(descriptor="orientation"), renderer.camera)
+    e_old = _gap_errors(renderer, gap_map, old)
+    e_new = _gap_errors(renderer, gap_map, new)
+    assert np.median(e_old) > 5.0 and np.mean(e_old < 2.0) <= 1 / 3, np.round(e_old, 1)
+    assert np.median(e_new) < 1.5 and np.mean(e_new < 2.0) >= 2 / 3, np.round(e_new, 1)
+
+
+def test_orientation_with_masks_survives_the_gap_and_vertical_occluders(world, gap_map) -> None:
+    """The same gap plus three upright boxes (poles, cars, facades) in every camera frame (measured: median
+    0.94 m, 8 of 12 within 2 m)."""
+    renderer, _, _ = world
+    new = ClassicalMatcher(ClassicalMatcherConfig(), renderer.camera)
+    e = _gap_errors(renderer, gap_map, new, occlude=True)
+    assert np.median(e) < 1.5 and np.mean(e < 2.0) >= 7 / 12, np.round(e, 1)

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from mav_autopilot import free_udp_port
+from taco_mav.config import PROFILE_DIR
 
 PROFILES = {  # case -> (YAML text or None for a missing file, what the error line must contain besides the file)
     "unknown_key": ("link:\n  bogus: 1\n", ["link.bogus", "unknown key"]),
@@ -45,7 +46,7 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], t
     for name, content in (("short.key", b"abc"),):  # the other key faults: test_signing.py, in-process
         key = root / name
         key.write_bytes(content)
-        good = Path(__file__).resolve().parents[1] / "vehicle_profiles" / "ardupilot_rover.yaml"
+        good = PROFILE_DIR / "ardupilot_rover.yaml"
         procs[("run", name)] = (_start(["run", "--profile", str(good), "--connect",
                                         f"udpin:127.0.0.1:{free_udp_port()}", "--signing-key", str(key)]), key)
     out = {}

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from taco_mav.config import Profile, profile_from_dict
+from taco_mav.config import PROFILE_DIR, Profile, profile_from_dict
 from taco_mav.geo import UtmProjector
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from mav_autopilot import MiniAutopilot, free_udp_port
@@ -153,26 +153,31 @@ def m_id(name: str) -> int:
     return getattr(mavutil.mavlink, f"MAVLINK_MSG_ID_{name}")
 
 
-def test_sigint_exits_clean(tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 0)], ids=["SIGINT", "SIGTERM"])
+def test_signal_stops_clean(tmp_path: Path, sig: int, code: int) -> None:
+    """Both signals stop the daemon cleanly (logs closed with a stop event, in the session's own timestamped
+    folder under --log-dir); Ctrl-C exits 130 as every command does, SIGTERM (systemd's stop) 0."""
     port = free_udp_port()
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen([sys.executable, "-m", "taco_mav.cli", "run", "--profile",
-                             str(Path(__file__).resolve().parents[1] / "vehicle_profiles" / "ardupilot_rover.yaml"),
+                             str(PROFILE_DIR / "ardupilot_rover.yaml"), "--dead-reckoning",
                              "--connect", f"udpin:127.0.0.1:{port}", "--origin", "49.0,8.4,115",
                              "--log-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not (tmp_path / "events.jsonl").exists():
+        while time.monotonic() < deadline and not list(tmp_path.glob("*/events.jsonl")):
             time.sleep(0.1)
         time.sleep(0.5)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         rc = proc.wait(15)
     finally:
         if proc.poll() is None:
             proc.kill()
     out = proc.stdout.read().decode()
-    assert rc == 0, out
-    kinds = [json.loads(line)["event"] for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    assert rc == code, out
+    assert "Traceback" not in out
+    (events,) = tmp_path.glob("*/events.jsonl")
+    kinds = [json.loads(line)["event"] for line in events.read_text().splitlines()]
     assert kinds[:2] == ["origin", "start"] and kinds[-1] == "stop"  # --origin is set before start
 
 

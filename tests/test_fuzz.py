@@ -1,4 +1,4 @@
-"""The fuzz harness (taco_mav/link/fuzz.py) and its frames: a short seeded run against a real Daemon over UDP on
+"""The fuzz harness (tests/fuzz_harness.py) and its frames: a short seeded run against a real Daemon over UDP on
 127.0.0.1 (the long one is tools/fuzz_mavlink.py), and the generator's determinism."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from taco_mav.link.fuzz import FuzzOptions, run_fuzz  # noqa: E402
-from taco_mav.link.fuzz_frames import MUTATIONS, STEP_S, AutopilotStream, Mutator  # noqa: E402
+from fuzz_frames import MUTATIONS, STEP_S, AutopilotStream, Mutator  # noqa: E402
+from fuzz_harness import FuzzOptions, run_fuzz  # noqa: E402
 
 FRAMES = 5000
 

@@ -19,9 +19,9 @@ from pymavlink.dialects.v20 import ardupilotmega as apm
 from taco_mav.config import profile_from_dict
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from taco_mav.link.decoders import Decoders
-from taco_mav.link.fuzz import FuzzOptions, run_fuzz
-from taco_mav.link.fuzz_frames import STEP_S, AutopilotStream, corrupt_imu
 from taco_mav.link.imu_source import InputSources, SourceSelector, attitude_quaternion
+from fuzz_frames import STEP_S, AutopilotStream, corrupt_imu
+from fuzz_harness import FuzzOptions, run_fuzz
 from mav_autopilot import free_udp_port
 
 MAV = apm.MAVLink(None, srcSystem=1, srcComponent=1)

@@ -5,7 +5,7 @@
     python tools/fuzz_mavlink.py --frames 20000 --exclude time_back,time_forward,negative_dt,zero_dt --out f.json
     python tools/fuzz_mavlink.py --frames 30000 --imu-message auto --corrupt-imu-first 200 --out f.json
 
-Feeds seeded random and mutated MAVLink frames (taco_mav/link/fuzz_frames.py: bit flips, truncations, bad CRC,
+Feeds seeded random and mutated MAVLink frames (tests/fuzz_frames.py: bit flips, truncations, bad CRC,
 unknown ids, out-of-range and NaN/inf fields, zero/negative dt, time jumps, duplicates, late frames, foreign
 sources, ...) mixed with a valid autopilot stream into a Daemon, one episode per IMU message kind, and checks
 every float field the daemon sends back. Prints the headline figures; exit code 1 when the daemon crashed, an
@@ -21,8 +21,12 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from taco_mav.link.fuzz import FuzzOptions, run_fuzz
-from taco_mav.link.fuzz_frames import MUTATIONS
+# The fuzz harness is test tooling and lives with the tests (tests/fuzz_harness.py, tests/fuzz_frames.py), not
+# in the product package; this developer tool runs from a checkout and reaches it there.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from fuzz_frames import MUTATIONS  # noqa: E402
+from fuzz_harness import FuzzOptions, run_fuzz  # noqa: E402
 
 HEADLINE = ("fuzz_frames", "datagrams_sent", "datagrams_read", "wall_s", "crashes", "escaped_exceptions",
             "handler_errors", "logged_exceptions", "nonfinite_output_fields", "designed_nan_fields",

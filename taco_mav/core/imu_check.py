@@ -66,15 +66,15 @@ class UnaidedTrack:
 
     def add(self, t: float, accel_fwd: float, theta: float, allow_reverse: bool) -> None:
         """One IMU sample at time t (s): level forward acceleration m/s^2, compass heading ENU rad."""
-        if not self.started:
+        if not math.isfinite(self.t0):  # not started (the property, inline: 100 Hz)
             return
         dt = t - self.t
         if dt <= 0.0:
             return
         self.t = t
         v1 = self.v + (accel_fwd - self.bias) * dt
-        if not allow_reverse:
-            v1 = max(v1, 0.0)
+        if not allow_reverse and v1 < 0.0:  # max(v1, 0.0), the same value for -0.0 and NaN too
+            v1 = 0.0
         step = 0.5 * (self.v + v1) * dt
         self.v = v1
         self.x += step * math.cos(theta)

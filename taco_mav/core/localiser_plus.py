@@ -24,7 +24,7 @@ from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import (FixNoiseScale, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
+from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
                                 process_noise_plus)
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.safety_guard import SafetyGuardMixin
@@ -77,6 +77,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._zupt = False  # the last frame had a zero-velocity update
         self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
         self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window)
+        self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
+        self._odo = 0.0  # distance travelled, metres (new frames only)
+        self._odo_at_query = 0.0  # ... when the last query was planned
+        self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -143,6 +147,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             self.ukf.x[3] -= tick.dv_fed
 
     def _close_tick(self, tick: _Tick) -> None:
+        self._odo += tick.inc.distance
         self._feedback(tick)
         if self.q.guard:
             self._guard()
@@ -172,21 +177,28 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         state = self.lock.state
         if state is LockState.LOST:
             rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
-            return "recover", 0.0, hex_offsets(rings, q.grid_spacing_m)
+            return self._planned("recover", hex_offsets(rings, q.grid_spacing_m))
         arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
         if state is LockState.CONFIRMING:
-            return "confirm", 0.0, arm
+            return self._planned("confirm", arm)
         if self._gnss_handover():
-            return "handover", 0.0, arm
+            return self._planned("handover", arm)
+        if (q.trigger_distance_m > 0.0 and self._odo - self._odo_at_fix >= q.trigger_distance_m
+                and self._odo - self._odo_at_query >= q.trigger_retry_m):
+            return self._planned("distance", arm)
         if sig >= q.trigger_sigma_m:
-            return "covariance", 0.0, arm
+            return self._planned("covariance", arm)
         # also at an apparent stop (one the IMU cannot tell from a smooth cruise must not silence the camera,
         # issue 19), unless the autopilot confirms it does not drive
         d = self._drive
         stopped = d is not None and not d[1] and self.t - d[0] <= q.drive_command_timeout_s
         if self.t - self._last_fix_t >= q.trigger_time_s and not (stopped and (self._zupt or self.still.stationary)):
-            return "time", 0.0, arm
+            return self._planned("time", arm)
         return None
+
+    def _planned(self, reason: str, offsets: np.ndarray) -> tuple[str, float, np.ndarray]:
+        self._odo_at_query = self._odo
+        return reason, 0.0, offsets
 
     def _gnss_handover(self) -> bool:
         """True once when the real GNSS that was in use is lost or held off: the camera at once, rather than
@@ -257,6 +269,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if qp.adaptive_fix_noise and state is LockState.LOCKED:  # learn from this fix for the next ones
             self.fix_scale.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f0, s_l0))
         self._fuse(tick, z, s_f, s_l)
+        self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
+        if state is LockState.LOCKED:
+            self.report_factor.update(nis)
         self._settle_lock(state, jump, s_f, s_l)
         if self._history:
             self._feedback(self._history[-1])
@@ -317,6 +332,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
     def estimate(self) -> Estimate:
         est = super().estimate()
         x = self.ukf.x
+        if self.q.report_calibration:
+            est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
         lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
         if lo < self._report_floor_m**2:
             est = dataclasses.replace(est, cov_xy=est.cov_xy + (self._report_floor_m**2 - lo) * np.eye(2))

@@ -64,6 +64,8 @@ class PlusParams:
     # trigger and search
     trigger_sigma_m: float = 3.0
     trigger_time_s: float = 10.0
+    trigger_distance_m: float = 40.0  # also ask once this many metres passed since the last accepted fix (0: off)
+    trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
     cross_k: float = 2.0  # cross arm = clip(k sigma_h, min, max)
     cross_min_m: float = 1.0
     cross_max_m: float = 10.0
@@ -77,6 +79,11 @@ class PlusParams:
     fix_scale_min: float = 0.3
     fix_scale_max: float = 2.0
     fix_scale_window: int = 10
+    # reported accuracy: the filter's covariance times the a-posteriori variance factor of the fixes
+    report_calibration: bool = True
+    report_window: int = 20
+    report_factor_min: float = 0.1
+    report_factor_max: float = 4.0
     # loss of lock and recovery
     capture_radius_m: float = 20.0
     lost_after: int = 4  # consecutive triggers without an accepted fix
@@ -198,3 +205,30 @@ class FixNoiseScale:
         a = 1.0 / min(self.n + 1, self.window)
         self.s2 = min(max((1.0 - a) * self.s2 + a * sample, self.lo * self.lo), self.hi * self.hi)
         return self.scale
+
+
+@dataclass
+class VarianceFactor:
+    """The a-posteriori variance factor of the accepted fixes (the "variance of unit weight" of a least-squares
+    adjustment): the mean normalised innovation squared of a 2-D position fix is 2 when the filter's prior
+    covariance P and the fix covariance R are right, 2 k when both are k times too large or too small, so
+    k = mean(NIS) / 2 is the factor that makes the filter's covariance honest. Averaged like `FixNoiseScale`
+    (the prior k = 1 counting as one sample, then exponentially over `window`), clipped to [lo, hi]."""
+
+    lo: float
+    hi: float
+    window: int
+    k: float = 1.0
+    n: int = 0
+
+    def update(self, nis: float) -> float:
+        """Add one accepted fix's NIS (2 dof); returns the new factor."""
+        self.n += 1
+        a = 1.0 / min(self.n + 1, self.window)
+        self.k = (1.0 - a) * self.k + a * 0.5 * min(max(float(nis), 0.0), 50.0)
+        return min(max(self.k, self.lo), self.hi)
+
+    @property
+    def factor(self) -> float:
+        """The variance factor to apply to the reported covariance (dimensionless)."""
+        return min(max(self.k, self.lo), self.hi)

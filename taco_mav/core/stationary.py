@@ -25,16 +25,30 @@ class StationaryDetector:
         self.gyro_max = gyro_max
         self.accel_std_max = accel_std_max
         self.accel_mean_max = accel_mean_max
-        # t, specific force FRD, |omega|, level forward acceleration
-        self._samples: deque[tuple[float, tuple[float, float, float], float, float]] = deque(maxlen=4096)
+        # per sample, in parallel deques (C-level max / sum over them): t, specific force FRD, |omega|, level
+        # forward acceleration
+        self._t: deque[float] = deque(maxlen=4096)
+        self._f: deque[tuple[float, float, float]] = deque(maxlen=4096)
+        self._g: deque[float] = deque(maxlen=4096)
+        self._a: deque[float] = deque(maxlen=4096)
 
     def add(self, t: float, accel: tuple[float, float, float], gyro: tuple[float, float, float],
             accel_fwd: float = 0.0) -> None:
         """t: seconds; accel: specific force, m/s^2; gyro: rad/s (any body frame); accel_fwd: gravity-compensated
         forward acceleration in the level frame, m/s^2."""
-        self._samples.append((t, tuple(accel), math.sqrt(sum(g * g for g in gyro)), accel_fwd))
-        while self._samples and self._samples[0][0] < t - self.window_s:
-            self._samples.popleft()
+        gx, gy, gz = gyro
+        ts = self._t
+        ts.append(t)
+        self._f.append(tuple(accel))
+        # |omega| summed left to right, as sum() over the squares did on Python 3.11 (3.12's sum compensates)
+        self._g.append(math.sqrt(gx * gx + gy * gy + gz * gz))
+        self._a.append(accel_fwd)
+        start = t - self.window_s
+        while ts and ts[0] < start:
+            ts.popleft()
+            self._f.popleft()
+            self._g.popleft()
+            self._a.popleft()
 
     @property
     def stationary(self) -> bool:
@@ -43,16 +57,17 @@ class StationaryDetector:
 
     def still(self, accel_bias: float = 0.0) -> bool:
         """accel_bias: the forward accelerometer bias estimate, m/s^2 (what a still IMU reads forward)."""
-        s = self._samples
-        if len(s) < 3 or s[-1][0] - s[0][0] < 0.8 * self.window_s:
+        ts = self._t
+        if len(ts) < 3 or ts[-1] - ts[0] < 0.8 * self.window_s:
             return False
-        if max(g for _, _, g, _ in s) > self.gyro_max:
+        if max(self._g) > self.gyro_max:
             return False
-        n = len(s)
-        if abs(sum(a for _, _, _, a in s) / n - accel_bias) > self.accel_mean_max:
+        n = len(ts)
+        if abs(sum(self._a) / n - accel_bias) > self.accel_mean_max:
             return False
         var = 0.0
+        f = self._f
         for axis in range(3):
-            mean = sum(f[axis] for _, f, _, _ in s) / n
-            var += sum((f[axis] - mean) ** 2 for _, f, _, _ in s) / (n - 1)
+            mean = sum(v[axis] for v in f) / n
+            var += sum((v[axis] - mean) ** 2 for v in f) / (n - 1)
         return math.sqrt(var) <= self.accel_std_max

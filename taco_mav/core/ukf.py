@@ -7,6 +7,10 @@ Kalman updates in Joseph form rather than with filterpy's unscented update: with
 sigma point's weight is about -1e6, and once P is large (minutes without a fix) the unscented update's
 cancellation loses positive definiteness. After every step P is symmetrised and, if needed, repaired to the
 nearest positive-definite matrix (eigenvalue floor), so Cholesky in the next predict never fails.
+
+Speed (issue 18): predict and the updates run as compiled kernels (`ukf_kernels`, numba) that do exactly the
+operations of filterpy's predict and of `joseph_update_reference`, bit for bit; the filter keeps x and P as
+plain arrays (filterpy only supplies the sigma-point weights).
 """
 
 from __future__ import annotations
@@ -14,8 +18,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import MerweScaledSigmaPoints
 
+from taco_mav.core import ukf_kernels as _k
 from taco_mav.core.preintegration import wrap_angle as _wrap
 
 _EIG_FLOOR = 1e-9
@@ -45,10 +50,6 @@ def _residual_x(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d
 
 
-def _hx(x: np.ndarray) -> np.ndarray:  # pragma: no cover - filterpy requires one; updates are linear here
-    return x[:2]
-
-
 def _leading_minors_positive(S: np.ndarray, floor: float) -> bool:
     """Sylvester's criterion with a margin, for the 2x2/3x3 matrices here (cheaper than an eigendecomposition)."""
     if S.shape == (3, 3):
@@ -64,13 +65,28 @@ def nearest_pd(P: np.ndarray, floor: float = _EIG_FLOOR) -> np.ndarray:
     S = 0.5 * (P + P.T)
     if _leading_minors_positive(S, floor):
         return S
+    return _lift(S, floor)
+
+
+def _lift(S: np.ndarray, floor: float) -> np.ndarray:
+    """Lift the eigenvalues of the symmetric S below `floor` to it."""
     w, V = np.linalg.eigh(S)
     w = np.maximum(w, floor)
     return (V * w) @ V.T
 
 
 def joseph_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, innovation: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Exact linear Kalman update in Joseph form. Returns (x, P, NIS) where NIS = y^T S^-1 y."""
+    """Exact linear Kalman update in Joseph form. Returns (x, P, NIS) where NIS = y^T S^-1 y. Compiled; the
+    same numbers as `joseph_update_reference`."""
+    c = np.ascontiguousarray
+    innovation = c(innovation, dtype=float)
+    Kt, P_new, nis, ok = _k.joseph(c(P, dtype=float), c(H, dtype=float), innovation, c(R, dtype=float), _EIG_FLOOR)
+    return x + Kt.T @ innovation, P_new if ok else _lift(P_new, _EIG_FLOOR), float(nis)
+
+
+def joseph_update_reference(x: np.ndarray, P: np.ndarray, H: np.ndarray, innovation: np.ndarray,
+                            R: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """`joseph_update` in plain numpy (the specification the compiled kernel is tested against)."""
     S = H @ P @ H.T + R
     S = 0.5 * (S + S.T)
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
@@ -98,10 +114,10 @@ class PlanarUkf:
         if n not in (3, 5, 6) or np.shape(P0) != (n, n):
             raise ValueError(f"PlanarUkf: state must be 3, 5 or 6 long with a matching P, got {n} and {np.shape(P0)}")
         points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
-        self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=2, dt=0.1, hx=_hx, fx=_motion, points=points,
-                                          residual_x=_residual_x)
-        self._ukf.x = np.asarray(x0, dtype=float).copy()
-        self._ukf.P = nearest_pd(np.asarray(P0, dtype=float))
+        self._Wm, self._Wc = points.Wm, points.Wc
+        self._lam_n = (alpha**2 * (n + kappa) - n) + n  # filterpy: (lambda_ + n) scales P before the Cholesky
+        self._x = np.asarray(x0, dtype=float).copy()
+        self._P = nearest_pd(np.asarray(P0, dtype=float))
         self._h_pos, self._h_theta = _rows(n, 0, 1), _rows(n, 2)
         if n == 6:
             self._h_theta[0, 5] = 1.0  # the compass reads theta + beta
@@ -109,46 +125,51 @@ class PlanarUkf:
 
     @property
     def x(self) -> np.ndarray:
-        return self._ukf.x
+        """The state (the live array: callers may adjust components in place)."""
+        return self._x
 
     @property
     def P(self) -> np.ndarray:
-        return self._ukf.P
+        return self._P
 
     def get_state(self) -> tuple[np.ndarray, np.ndarray]:
         """A copy of (x, P) for the delayed-fix history."""
-        return self._ukf.x.copy(), self._ukf.P.copy()
+        return self._x.copy(), self._P.copy()
 
     def set_state(self, x: np.ndarray, P: np.ndarray) -> None:
-        self._ukf.x = np.asarray(x, dtype=float).copy()
-        self._ukf.P = np.asarray(P, dtype=float).copy()
+        self._x = np.array(x, dtype=float)
+        self._P = np.array(P, dtype=float)
 
     def predict(self, d_fwd: float, d_left: float, d_theta: float, Q: np.ndarray, dt: float = 0.1,
                 bias_decay: float = 1.0) -> None:
         """Propagate by one body-frame increment (metres, metres, rad) over dt seconds with process noise Q
         (n x n; dt matters only for the taco+ speed states; bias_decay only for the compass bias)."""
-        ukf = self._ukf
-        ukf.Q = Q
+        Q = np.ascontiguousarray(Q, dtype=float)
+        args = (Q, self._lam_n, self._Wm, self._Wc, float(dt), float(d_fwd), float(d_left), float(d_theta),
+                float(bias_decay), _EIG_FLOOR)
         try:
-            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta, bias_decay=bias_decay)
+            x, P, ok = _k.predict(self._x, self._P, *args)
         except np.linalg.LinAlgError:
-            ukf.P = nearest_pd(ukf.P, floor=1e-6)
-            ukf.predict(dt=dt, d_fwd=d_fwd, d_left=d_left, d_theta=d_theta, bias_decay=bias_decay)
-        ukf.x[2] = _wrap(ukf.x[2])
-        ukf.P = nearest_pd(ukf.P)
+            self._P = nearest_pd(self._P, floor=1e-6)
+            x, P, ok = _k.predict(self._x, self._P, *args)
+        self._x, self._P = x, P if ok else _lift(P, _EIG_FLOOR)
+
+    def _update(self, H: np.ndarray, innovation: np.ndarray, R: np.ndarray) -> float:
+        Kt, P, nis, ok = _k.joseph(self._P, H, innovation, R, _EIG_FLOOR)
+        x = self._x + Kt.T @ innovation
+        x[2] = _k.wrap(x[2])
+        self._x, self._P = x, P if ok else _lift(P, _EIG_FLOOR)
+        return float(nis)
 
     def update_position(self, z: np.ndarray, R: np.ndarray) -> float:
         """Position-only fix z (ENU metres, (2,)) with covariance R (2x2). Returns the NIS."""
-        ukf = self._ukf
-        innovation = np.asarray(z, dtype=float) - ukf.x[:2]
-        ukf.x, ukf.P, nis = joseph_update(ukf.x, ukf.P, self._h_pos, innovation, R)
-        ukf.x[2] = _wrap(ukf.x[2])
-        return nis
+        innovation = np.asarray(z, dtype=float) - self._x[:2]
+        return self._update(self._h_pos, innovation, np.ascontiguousarray(R, dtype=float))
 
     def position_nis(self, z: np.ndarray, R: np.ndarray) -> float:
         """Normalised innovation squared of a position fix, without applying it."""
-        innovation = np.asarray(z, dtype=float) - self._ukf.x[:2]
-        S = self._ukf.P[:2, :2] + R
+        innovation = np.asarray(z, dtype=float) - self._x[:2]
+        S = self._P[:2, :2] + R
         return float(innovation @ np.linalg.solve(S, innovation))
 
     def update_speed_error(self, dv: float, sigma: float) -> None:
@@ -156,18 +177,17 @@ class PlanarUkf:
         dv = -(preintegrated speed). taco+ only."""
         if self._h_speed is None:
             raise ValueError("update_speed_error needs the 5-state (taco+) filter")
-        ukf = self._ukf
-        innovation = np.array([dv - ukf.x[3]])
-        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, self._h_speed, innovation, np.array([[sigma * sigma]]))
-        ukf.x[2] = _wrap(ukf.x[2])
+        self._scalar(self._h_speed, float(dv), sigma * sigma, 3)
 
     def update_heading(self, theta: float, sigma: float) -> None:
         """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi]); with the
         compass-bias state the prediction is theta + beta."""
-        ukf = self._ukf
-        innovation = np.array([_wrap(theta - float(self._h_theta[0] @ ukf.x))])
-        ukf.x, ukf.P, _ = joseph_update(ukf.x, ukf.P, self._h_theta, innovation, np.array([[sigma * sigma]]))
-        ukf.x[2] = _wrap(ukf.x[2])
+        self._scalar(self._h_theta, float(theta), sigma * sigma, -1)
+
+    def _scalar(self, H: np.ndarray, z: float, variance: float, col: int) -> None:
+        """One-row update with this variance: z a heading (col < 0: innovation wrap(z - H x)) or state `col`."""
+        x, P, ok = _k.scalar_update(self._x, self._P, H, z, float(variance), col, _EIG_FLOOR)
+        self._x, self._P = x, P if ok else _lift(P, _EIG_FLOOR)
 
 
 def process_sigmas(epsilon: float, sigma_fwd_min: float = 1.0, sigma_fwd_k: float = 2.0, sigma_lat_min: float = 1.5,
@@ -180,11 +200,7 @@ def process_noise(theta: float, sigma_fwd: float, sigma_lat: float, sigma_theta:
     """Q (3x3) for one predict: diag(sigma_fwd^2, sigma_lat^2, sigma_theta^2) per camera-rate frame
     (Sec. III-F) with the position block taken in the body frame (forward/lateral, as the names say) and
     rotated into ENU by theta, scaled by dt / frame_dt so the noise per second is the same at any rate."""
-    scale = dt / frame_dt
-    Q = np.zeros((3, 3))
-    Q[:2, :2] = fix_covariance(theta, sigma_fwd, sigma_lat) * scale
-    Q[2, 2] = sigma_theta * sigma_theta * scale
-    return Q
+    return _k.process_noise(float(theta), float(sigma_fwd), float(sigma_lat), float(sigma_theta), dt / frame_dt)
 
 
 def fix_sigmas(w: float, fwd_num: float = 1.5, fwd_min: float = 0.5, fwd_max: float = 8.0, lat_num: float = 3.0,
@@ -199,7 +215,13 @@ def fix_sigmas(w: float, fwd_num: float = 1.5, fwd_min: float = 0.5, fwd_max: fl
 
 
 def fix_covariance(theta: float, sigma_fwd: float, sigma_lat: float) -> np.ndarray:
-    """R_meas = Rot(theta) diag(sigma_fwd^2, sigma_lat^2) Rot(theta)^T, m^2 (ENU)."""
+    """R_meas = Rot(theta) diag(sigma_fwd^2, sigma_lat^2) Rot(theta)^T, m^2 (ENU). Compiled
+    (`ukf_kernels.fix_covariance`, the same numbers as `fix_covariance_reference`)."""
+    return _k.fix_covariance(float(theta), float(sigma_fwd), float(sigma_lat))
+
+
+def fix_covariance_reference(theta: float, sigma_fwd: float, sigma_lat: float) -> np.ndarray:
+    """`fix_covariance` in plain numpy (the specification the kernel is tested against)."""
     c, s = math.cos(theta), math.sin(theta)
     Rot = np.array([[c, -s], [s, c]])
     return Rot @ np.diag([sigma_fwd * sigma_fwd, sigma_lat * sigma_lat]) @ Rot.T

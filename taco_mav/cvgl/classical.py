@@ -2,22 +2,25 @@
 
 Pipeline per trigger (one ground frame, K heading-up crops):
 1. the frame's grey image is projected ONCE to a bird's-eye view (BEV, `taco_mav.cvgl.ipm`) at the matcher's
-   resolution, vehicle at the bottom-centre pixel, forward = image-up; then local contrast normalisation (LCN).
+   resolution, vehicle at the bottom-centre pixel, forward = image-up. Pixels the IPM cannot represent are
+   masked (`taco_mav.cvgl.masks`: vertical structure found in the camera image, the ego vehicle's rows; the
+   sky and beyond-range rays are outside the BEV's own mask).
 2. the BEV is rotated about the vehicle pixel by each candidate residual psi (CCW positive) in a grid over
-   +-rotation_range; every rotated template is restricted to a common mask (the intersection of the rotated
-   view wedges), normalised (zero mean, unit energy), and Fourier-transformed once; the FFTs are reused for
-   every crop.
-3. each crop is converted to grey, resampled to the matcher's resolution, LCN'd and transformed once; the
-   zero-normalised cross-correlation over all shifts is num / sqrt(local variance), the local sums coming from
-   FFT correlations with the common mask (exact where the template lies wholly on the crop; partial overlaps
-   down to `min_overlap` are scored with the template energy prorated).
+   +-rotation_range and described (`taco_mav.cvgl.descriptors`: "orientation", gradient orientation in
+   doubled-angle form, 2 channels; or "lcn", grey-level local contrast normalisation, 1 channel); every rotated
+   template is restricted to a common mask (the intersection of the rotated view wedges) less the trigger's
+   masked pixels (rotated with it), normalised (zero mean per channel, unit energy), and Fourier-transformed
+   once; the FFTs are reused for every crop.
+3. each crop is converted to grey, resampled to the matcher's resolution, described and transformed once; the
+   zero-normalised cross-correlation of the stacked channels over all shifts is num / sqrt(local variance), the
+   local sums coming from FFT correlations with the common mask (exact where the template lies wholly on the
+   crop; partial overlaps down to `min_overlap` are scored with the template energy prorated).
 4. the best rotation is refined at +-step/2 and by a parabola through the three peak scores; the peak position
-   by a 2-D parabolic fit. w = a logistic of the peak-to-sidelobe ratio (PSR), calibrated so that w tracks the
-   probability of a correct match (`psr_weight`).
+   by a 2-D parabolic fit. w = a logistic of the peak-to-sidelobe ratio (PSR), per descriptor
+   (`W_CALIBRATION`), that rises with the probability of a correct match (`psr_weight`).
 
 Output per crop (see `taco_mav.cvgl.base`): R = rotation by psi (CCW positive), t = vehicle (forward, left)
-metres from the crop centre in the crop frame, w in (0, 1].
-"""
+metres from the crop centre in the crop frame, w in (0, 1]."""
 
 from __future__ import annotations
 
@@ -34,12 +37,14 @@ from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import ClassicalMatcherConfig
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
+from taco_mav.cvgl.descriptors import DESCRIPTORS, describe
 from taco_mav.cvgl.ipm import BevProjector
+from taco_mav.cvgl.masks import MaskOptions, image_mask
 from taco_mav.errors import MatcherError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClassicalMatcher", "psr_weight"]
+__all__ = ["ClassicalMatcher", "W_CALIBRATION", "psr_weight"]
 
 _EPS = 1e-6
 
@@ -51,9 +56,25 @@ _EPS = 1e-6
 # - the bench's textured mosaic (`taco_mav.bench.classical.confidence_samples`, seeds 1-4, 1600 + 400 crops):
 #   P(correct) 0.10 at 6-7, 0.59 at 7-8, 0.98 at 8-9; chance median 4.5; midpoint 7.4, scale 0.40 (AUC 0.9995).
 # 6.5 / 0.5 sits between the two fits (mean log-loss 0.19 and 0.037 against the best 0.18 and 0.021).
-# The profile's classical.psr_at_half_weight / psr_logistic_scale default to these values.
+# The profile's classical.psr_at_half_weight / psr_logistic_scale override W_CALIBRATION below when set.
 PSR_AT_HALF_WEIGHT = 6.5
 PSR_LOGISTIC_SCALE = 0.5
+
+# (midpoint, scale) of the PSR -> w logistic per descriptor, used when the profile leaves them unset. Both
+# descriptors keep the mapping above; measured again for issue 17 on world seed 5 (`taco-mav world --seed 5`, not
+# a world of the figures in docs/matchers.md): 250 single crops per descriptor, 50 per condition clean / map /
+# fold / fold+occ / map+occ of tools/appearance_gap.py, the vehicle 0-45 m from the crop centre.
+# - orientation: P(correct) 0.18 at PSR < 5, 0.49 at 5-6, 0.86 at 6-6.5, 0.94-1.00 from 6.5 on (PSR AUC 0.91);
+#   maximum-likelihood logistic midpoint 5.4, scale 0.65. 6.5 / 0.5 is more conservative below PSR 6.5, where
+#   the wrong matches are (RMS error 27 m forward, 14 m lateral against 0.18 / 0.49 m for correct ones).
+# - lcn: P(correct) 0.06 / 0.26 / 0.56 / 0.78 (6.5-7) / 0.93 (7-8) / 1.00 (>= 8), AUC 0.96; fit 6.0, 0.6.
+# w cannot make the fix noise honest for correct matches: at w = 1 the paper's mapping (Sec. III-F) says 1.5 m
+# forward, 3 m lateral, 5-10 times their errors; docs/matchers.md has the NIS this gives and the profile
+# setting that brings it to 2.
+W_CALIBRATION: dict[str, tuple[float, float]] = {
+    "lcn": (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE),
+    "orientation": (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE),
+}
 
 
 def psr_weight(psr: float, psr_at_half_weight: float = PSR_AT_HALF_WEIGHT,
@@ -63,22 +84,6 @@ def psr_weight(psr: float, psr_at_half_weight: float = PSR_AT_HALF_WEIGHT,
     z = (psr - psr_at_half_weight) / scale
     w = 1.0 / (1.0 + math.exp(-z)) if z > -700.0 else 0.0
     return float(min(max(w, _EPS), 1.0))
-
-
-def _lcn(img: np.ndarray, mask: np.ndarray | None, sigma_px: float) -> np.ndarray:
-    """Local contrast normalisation: (x - local mean) / local std with Gaussian windows; normalised convolution
-    over `mask` (float32 0/1) so that masked-out pixels neither contribute nor get values (they return 0)."""
-    k = int(2 * math.ceil(3 * sigma_px) + 1)
-    if mask is None:
-        mean = cv2.GaussianBlur(img, (k, k), sigma_px)
-        d = img - mean
-        var = cv2.GaussianBlur(d * d, (k, k), sigma_px)
-        return d / np.sqrt(var + 1.0)
-    wsum = cv2.GaussianBlur(mask, (k, k), sigma_px) + _EPS
-    mean = cv2.GaussianBlur(img * mask, (k, k), sigma_px) / wsum
-    d = (img - mean) * mask
-    var = cv2.GaussianBlur(d * d, (k, k), sigma_px) / wsum
-    return d / np.sqrt(var + 1.0)
 
 
 def _parabola(ym: float, y0: float, yp: float) -> float:
@@ -94,9 +99,19 @@ class ClassicalMatcher:
 
     name = "classical"
 
-    def __init__(self, cfg: ClassicalMatcherConfig, camera: GroundCamera) -> None:
+    def __init__(self, cfg: ClassicalMatcherConfig, camera: GroundCamera, *, descriptor: str | None = None,
+                 masks: MaskOptions | None = None) -> None:
+        """descriptor, masks: override the profile's `descriptor` and `mask_vertical` / `ego_mask_rows`."""
         self.cfg = cfg
         self.camera = camera
+        self.descriptor = cfg.descriptor if descriptor is None else descriptor
+        if self.descriptor not in DESCRIPTORS:
+            raise MatcherError(f"classical matcher: descriptor {self.descriptor!r} is not one of {', '.join(DESCRIPTORS)} "
+                               "(profile key classical.descriptor)")
+        self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows) if masks is None else masks
+        mid, scale = W_CALIBRATION[self.descriptor]
+        self.psr_at_half_weight = mid if cfg.psr_at_half_weight is None else cfg.psr_at_half_weight
+        self.psr_logistic_scale = scale if cfg.psr_logistic_scale is None else cfg.psr_logistic_scale
         m = cfg.bev_m_per_px
         self.m_per_px = m
         n_half = max(0, int(math.floor(cfg.rotation_range_rad / cfg.rotation_step_rad + 1e-9)))
@@ -116,21 +131,27 @@ class ClassicalMatcher:
         height = min(int(math.ceil(fwd_max / m)) + 3, cfg.bev_size_px)
         self._bev = BevProjector(camera, (2 * half_w + 1, height), m, cfg.max_range_m)
         self.vehicle_px = self._bev.vehicle_px
-        base = self._bev.mask.astype(np.float32)
-        common = base.copy()
-        for a in self.angles:
-            common = np.minimum(common, self._rotate(base, a, cv2.INTER_NEAREST))
-        self._mask = common
-        self._mask_n = float(common.sum())
+        self._base = self._bev.mask.astype(np.float32)
+        common = self._common(self._base)
+        self._mask, self._mask_n = common, float(common.sum())
         if self._mask_n < 100:
             raise MatcherError(f"classical matcher: only {self._mask_n:.0f} BEV pixels remain under the rotation "
                                "search; reduce rotation_range_rad or enlarge bev_size_px/max_range_m")
         self._sigma_px = max(cfg.lcn_sigma_m / m, 0.5)
         self._fft_shape: tuple[int, int] | None = None
         self._crop_px: int | None = None
+        self._mask_fc: np.ndarray | None = None
         self.last_psr: list[float] = []  # peak-to-sidelobe ratio of each crop of the last match() call
-        log.debug("classical matcher: template %dx%d px at %.2f m/px, %d angles, %.0f mask px",
-                  common.shape[1], common.shape[0], m, len(self.angles), self._mask_n)
+        self.last_mask_fraction = 1.0  # share of the static template mask left by the last trigger's masks
+        log.debug("classical matcher: %s descriptor, template %dx%d px at %.2f m/px, %d angles, %.0f mask px",
+                  self.descriptor, common.shape[1], common.shape[0], m, len(self.angles), self._mask_n)
+
+    def _common(self, mask: np.ndarray) -> np.ndarray:
+        """The intersection of `mask` (float32 0/1 on the template canvas) rotated by every searched angle."""
+        common = mask.copy()
+        for a in self.angles:
+            common = np.minimum(common, self._rotate(mask, a, cv2.INTER_NEAREST))
+        return common
 
     # ------------------------------------------------------------------ geometry helpers
     def _rotate(self, img: np.ndarray, angle: float, interp: int = cv2.INTER_LINEAR) -> np.ndarray:
@@ -154,30 +175,53 @@ class ClassicalMatcher:
         nx = sfft.next_fast_len(max(self._sx[1] + w, crop_px - self._sx[0]), real=True)
         self._fft_shape = (ny, nx)
         self._crop_px = crop_px
-        pad = np.zeros((ny, nx), np.float32)
-        pad[:h, :w] = self._mask
-        self._mask_fc = np.conj(sfft.rfft2(pad, workers=1))
+        self._mask_fc = self._mask_spectrum(self._mask)
         self._iy = np.arange(self._sy[0], self._sy[1] + 1) % ny
         self._ix = np.arange(self._sx[0], self._sx[1] + 1) % nx
 
-    def _template_fft(self, bev: np.ndarray, angle: float) -> np.ndarray:
-        """Conjugate spectrum of the rotated, common-masked, zero-mean unit-energy template."""
-        t = self._rotate(bev, angle) * self._mask
-        t -= self._mask * (t.sum() / self._mask_n)
-        t /= math.sqrt(float((t * t).sum())) + _EPS
-        ny, nx = self._fft_shape  # type: ignore[misc]
-        pad = np.zeros((ny, nx), np.float32)
-        pad[: t.shape[0], : t.shape[1]] = t
+    def _mask_spectrum(self, mask: np.ndarray) -> np.ndarray:
+        """Conjugate spectrum of a template-canvas mask at the current FFT size."""
+        pad = np.zeros(self._fft_shape, np.float32)  # type: ignore[arg-type]
+        pad[: mask.shape[0], : mask.shape[1]] = mask
         return np.conj(sfft.rfft2(pad, workers=1))
 
+    def _template_fft(self, bev: np.ndarray, angle: float, view: np.ndarray) -> np.ndarray:
+        """Conjugate spectra (C, ny, nx // 2 + 1) of the rotated template's descriptor channels on the common
+        mask less the trigger's hidden pixels, each zero-mean, jointly of unit energy. lcn: `bev` holds the
+        channels of the unrotated BEV, which are rotated (a scalar field); orientation: `bev` is the grey BEV,
+        rotated and then described (its channels are directions), with `view` (the BEV's usable pixels: in
+        view, not masked) rotated alike."""
+        seen = self._rotate(view, angle, cv2.INTER_NEAREST) if view is not self._base else None
+        if self.descriptor == "lcn":
+            chans = np.stack([self._rotate(c, angle) for c in bev])
+        else:
+            chans = describe(self.descriptor, self._rotate(bev, angle),
+                             self._rotate(view, angle, cv2.INTER_NEAREST) if seen is None else seen, self._sigma_px)
+        # the common mask, less what this trigger's masks hide (rotated with the template, not intersected over
+        # the rotations: the local statistics of the crop keep the common mask, a slight underestimate of the
+        # score where much is hidden, the same for every shift)
+        m = self._mask if seen is None else self._mask * seen
+        t = chans * m[None]
+        t -= m[None] * (t.sum(axis=(1, 2)) / max(float(m.sum()), 1.0))[:, None, None]
+        t /= math.sqrt(float((t * t).sum())) + _EPS
+        ny, nx = self._fft_shape  # type: ignore[misc]
+        pad = np.zeros((t.shape[0], ny, nx), np.float32)
+        pad[:, : t.shape[1], : t.shape[2]] = t
+        return np.conj(sfft.rfft2(pad, axes=(1, 2), workers=1))
+
     def _corr(self, spec: np.ndarray, conj_t: np.ndarray) -> np.ndarray:
-        """Correlation over the searched shifts (rows sy, cols sx) from a crop spectrum and a conjugate one."""
-        full = sfft.irfft2(spec * conj_t, s=self._fft_shape, workers=1)
+        """Correlation over the searched shifts (rows sy, cols sx) from a crop spectrum and a conjugate one;
+        (C, ...) spectra are correlated channel by channel and summed."""
+        prod = spec * conj_t
+        if prod.ndim == 3:
+            prod = prod.sum(axis=0)
+        full = sfft.irfft2(prod, s=self._fft_shape, workers=1)
         return full[np.ix_(self._iy, self._ix)]
 
     # ------------------------------------------------------------------ matching
     def _prepare_crop(self, crop: Crop) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Crop -> (spectrum of LCN grey, local std map over the common mask, overlap count), searched shifts."""
+        """Crop -> (spectra (C, ...) of its descriptor channels, spectrum of the channels' summed squares,
+        spectrum of its valid pixels) at the matcher's resolution."""
         img = crop.image
         if img.ndim != 3 or img.shape[0] != img.shape[1]:
             raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
@@ -192,21 +236,33 @@ class ClassicalMatcher:
         if self._crop_px != Sw:
             self._setup_fft(Sw)
         vm = None if valid is None else valid.astype(np.float32)
-        f = _lcn(grey.astype(np.float32), vm, self._sigma_px)
+        f = describe(self.descriptor, grey.astype(np.float32), vm, self._sigma_px)
+        C = f.shape[0]
         ny, nx = self._fft_shape  # type: ignore[misc]
-        pads = np.zeros((3, ny, nx), np.float32)
-        pads[0, :Sw, :Sw] = f
-        pads[1, :Sw, :Sw] = f * f
-        pads[2, :Sw, :Sw] = 1.0 if vm is None else vm
+        pads = np.zeros((C + 2, ny, nx), np.float32)
+        pads[:C, :Sw, :Sw] = f
+        pads[C, :Sw, :Sw] = (f * f).sum(axis=0)
+        pads[C + 1, :Sw, :Sw] = 1.0 if vm is None else vm
         specs = sfft.rfft2(pads, axes=(1, 2), workers=1)
-        s1 = self._corr(specs[0], self._mask_fc)
-        s2 = self._corr(specs[1], self._mask_fc)
-        n = np.maximum(self._corr(specs[2], self._mask_fc), 0.0)
-        var = np.maximum(s2 - s1 * s1 / np.maximum(n, 1.0), 0.0)
+        return specs[:C], specs[C], specs[C + 1]
+
+    def _denominator(self, prepared: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+        """NCC denominator over the searched shifts: sqrt(local variance of the crop's channels under the
+        template mask x prorated template energy); inf where the overlap is below min_overlap."""
+        chans, sq, valid = prepared
+        mask_fc = self._mask_fc
+        n = np.maximum(self._corr(valid, mask_fc), 0.0)
+        s2 = self._corr(sq, mask_fc)
+        nn = np.maximum(n, 1.0)
+        var = s2
+        for c in chans:
+            s1 = self._corr(c, mask_fc)
+            var = var - s1 * s1 / nn
+        var = np.maximum(var, 0.0)
         # sum f t is compared with sqrt(var * sum_overlap t^2) ~ sqrt(var * n / N_mask)
         denom = np.sqrt(var * n / self._mask_n) + 1e-3
         denom[n < self.cfg.min_overlap * self._mask_n] = np.inf
-        return specs[0], denom, n
+        return denom
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         """One MatchResult per crop, in order (contract in `taco_mav.cvgl.base`)."""
@@ -216,20 +272,33 @@ class ClassicalMatcher:
         image = frame.image
         grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
         bev, _ = self._bev.project(grey)
-        bev = _lcn(bev, self._bev.mask.astype(np.float32), self._sigma_px)
+        view = self._base
+        hidden = image_mask(image, self.camera, self.masks)
+        if hidden is not None:
+            occ, _ = self._bev.project(hidden.astype(np.float32))
+            view = self._base * (occ < 0.25).astype(np.float32)
         prepared = [self._prepare_crop(c) for c in crops]
+        self.last_mask_fraction = float((self._mask * view).sum()) / self._mask_n
+        if self.last_mask_fraction < self.masks.min_view_fraction:
+            # the masks leave too little ground to match: no answer (w at its floor), not a guess
+            self.last_psr = [0.0] * len(crops)
+            elapsed = time.perf_counter() - t_start
+            return [MatchResult(np.eye(2), np.zeros(2), _EPS, elapsed / len(crops)) for _ in crops]
+        if self.descriptor == "lcn":
+            bev = describe("lcn", bev, view, self._sigma_px)
         cache: dict[float, np.ndarray] = {}
 
         def tmpl(a: float) -> np.ndarray:
             key = round(a, 9)
             if key not in cache:
-                cache[key] = self._template_fft(bev, a)
+                cache[key] = self._template_fft(bev, a, view)
             return cache[key]
 
         h = 0.5 * self.cfg.rotation_step_rad
         results: list[MatchResult] = []
         psrs: list[float] = []
-        for (spec, denom, _), crop in zip(prepared, crops):
+        for prep, crop in zip(prepared, crops):
+            spec, denom = prep[0], self._denominator(prep)
             maps: dict[float, np.ndarray] = {}
 
             def score_at(a: float) -> np.ndarray:
@@ -286,6 +355,6 @@ class ClassicalMatcher:
         side = score[finite]
         psr = float((peak - side.mean()) / (side.std() + _EPS)) if side.size > 10 else 0.0
         psr = max(psr, 0.0)
-        w = psr_weight(psr, self.cfg.psr_at_half_weight, self.cfg.psr_logistic_scale)
+        w = psr_weight(psr, self.psr_at_half_weight, self.psr_logistic_scale)
         ca, sa = math.cos(angle), math.sin(angle)
         return MatchResult(R=np.array([[ca, -sa], [sa, ca]]), t=t, w=w), psr

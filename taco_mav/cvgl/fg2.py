@@ -21,13 +21,14 @@ without it, the package works and only this matcher raises MatcherError.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -40,6 +41,18 @@ from taco_mav.errors import MatcherError
 log = logging.getLogger(__name__)
 
 MIN_WEIGHT = 1e-3  # w is in (0, 1]: a zero or non-finite mass becomes this
+
+
+@runtime_checkable
+class Tunable(Protocol):
+    """A model with a fast path and compilable parts (the published FG2 wrapper); others ignore fg2.fast and
+    fg2.compile."""
+
+    def set_fast(self, fast: bool) -> None:
+        """Fast path on (True) or the unoptimised published forward (False), same weights."""
+
+    def compile_parts(self) -> None:
+        """torch.compile the expensive parts in place."""
 
 
 def _torch() -> Any:
@@ -109,11 +122,23 @@ class Fg2Matcher:
                                                   device=self.device)[None]
         self._pixel_from_level = torch.as_tensor(pixel_from_level(camera), dtype=torch.float32,
                                                  device=self.device)[None]
+        if isinstance(self.model, Tunable):
+            self.model.set_fast(cfg.fast)
+            if cfg.compile:
+                self.model.compile_parts()
+        elif cfg.compile:
+            log.warning("fg2.compile: %s has no compilable parts; running it as it is", type(self.model).__name__)
+        log.info("fg2: %s on %s, fast path %s, compile %s, fp16 autocast %s", type(self.model).__name__,
+                 self.device, "on" if cfg.fast else "off", "on" if cfg.compile else "off",
+                 "on" if self._autocast_enabled else "off")
+
+    @property
+    def _autocast_enabled(self) -> bool:
+        return bool(self.cfg.fp16 and self.device.type == "cuda")
 
     def _autocast(self) -> Any:
         torch = _torch()
-        enabled = self.cfg.fp16 and self.device.type == "cuda"
-        return torch.autocast(device_type=self.device.type, dtype=torch.float16, enabled=enabled)
+        return torch.autocast(device_type=self.device.type, dtype=torch.float16, enabled=self._autocast_enabled)
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         """One MatchResult per crop: the ground image is encoded once, the crops run as one batch."""
@@ -128,7 +153,7 @@ class Fg2Matcher:
             raise MatcherError(f"fg2: crops of one trigger must share size and m/px, got {sizes} and {scales}")
         m_per_px = crops[0].m_per_px
         start = time.perf_counter()
-        with torch.inference_mode(), self._autocast():
+        with torch.inference_mode(), tf32(self.device.type == "cuda" and self.cfg.fast), self._autocast():
             image = torch.from_numpy(np.ascontiguousarray(frame.image)).to(self.device)
             image = image.permute(2, 0, 1)[None].float() / 255.0
             feats = self.model.encode_ground(image, self._ground_from_pixel, self._pixel_from_level)
@@ -142,6 +167,21 @@ class Fg2Matcher:
         t_np = t_px.float().cpu().numpy().reshape(len(crops), 2)
         m_np = mass.float().cpu().numpy().reshape(len(crops))
         return [_to_result(R_np[i], t_np[i], float(m_np[i]), m_per_px, elapsed) for i in range(len(crops))]
+
+
+@contextlib.contextmanager
+def tf32(enabled: bool) -> Iterator[None]:
+    """TF32 for CUDA matmuls and convolutions while inside (the fast path on CUDA); the flags are restored."""
+    if not enabled:
+        yield
+        return
+    torch = _torch()
+    saved = torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32
+    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
+    try:
+        yield
+    finally:
+        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = saved
 
 
 def pixel_from_level(camera: GroundCamera) -> np.ndarray:

@@ -21,10 +21,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import NamedTuple
+
 import torch
 from torch import nn
 from torch.nn import functional as F
 
+from taco_mav.cvgl import fg2_fast
 from taco_mav.cvgl.procrustes import weighted_procrustes_2d
 from taco_mav.errors import MatcherError
 
@@ -69,27 +72,81 @@ def metric_grids(s: Fg2Settings) -> tuple[torch.Tensor, torch.Tensor]:
     return aerial.float(), ground.float()
 
 
+def dinov2_precision_for(extractor: nn.Module, device: torch.device) -> torch.dtype:
+    """FG2's DinoExtractor keeps DINOv2 in fp16 (its `amp_dtype`), right on CUDA; on other devices fp16 matmuls
+    are emulated (about 100x slower than fp32 on a CPU without AVX512-FP16), so there DINOv2 runs in fp32.
+    Returns the precision DINOv2 runs in."""
+    vit = getattr(extractor, "dinov2_vitl14", None)
+    if device.type == "cuda" or vit is None or not hasattr(extractor, "amp_dtype"):
+        return getattr(extractor, "amp_dtype", torch.float32)
+    vit.float()
+    extractor.amp_dtype = torch.float32
+    log.info("fg2: DINOv2 runs in fp32 on %s (FG2's fp16 is for CUDA)", device)
+    return torch.float32
+
+
+class GroundFeatures(NamedTuple):
+    """What `PublishedFg2.encode_ground` hands to `match_aerial`. feature: DINOv2 features (1, 1024, h, w);
+    camera_k (1, 3, 3) fp32; desc (1, D, N) and keep (1, N): the ground branch's output, computed once per
+    trigger on the fast path (None on the published path, where FG2's CVM recomputes it per crop)."""
+
+    feature: torch.Tensor
+    camera_k: torch.Tensor
+    desc: torch.Tensor | None = None
+    keep: torch.Tensor | None = None
+
+
 class PublishedFg2(nn.Module):
     """extractor: FG2's `DinoExtractor` (images -> DINOv2 patch features); cvm: FG2's `CVM`; settings: its
-    config. Implements `encode_ground` / `match_aerial` of `taco_mav.cvgl.fg2`."""
+    config; fast: the fast path (`fg2_fast`: ground branch once per trigger, heights batched, SDPA in DINOv2)
+    instead of FG2's own `CVM.forward` per crop; same outputs within float tolerance. Implements
+    `encode_ground` / `match_aerial` of `taco_mav.cvgl.fg2`."""
 
-    def __init__(self, extractor: nn.Module, cvm: nn.Module, settings: Fg2Settings) -> None:
+    def __init__(self, extractor: nn.Module, cvm: nn.Module, settings: Fg2Settings, fast: bool = True) -> None:
         super().__init__()
         self.extractor, self.cvm, self.settings = extractor, cvm, settings
         aerial, ground = metric_grids(settings)
         self.register_buffer("aerial_xy", aerial, persistent=False)
         self.register_buffer("ground_xy", ground, persistent=False)
+        self.fast = False
+        self.set_fast(fast)
+
+    def set_fast(self, fast: bool) -> None:
+        """Switch between the fast path and FG2's published forward (both on the same weights)."""
+        if fast:
+            n = fg2_fast.use_sdpa(self.extractor)
+            log.debug("fg2: fast path, %d DINOv2 attention blocks on SDPA", n)
+        else:
+            fg2_fast.restore_attention(self.extractor)
+        self.fast = bool(fast)
+
+    def compile_parts(self) -> None:
+        """torch.compile DINOv2's forward_features (the bulk of the time after the fast path); one graph per
+        input shape (ground image, batch of crops), compiled on first use."""
+        vit = getattr(self.extractor, "dinov2_vitl14", None)
+        if vit is None:
+            raise MatcherError("fg2.compile: FG2's DinoExtractor has no dinov2_vitl14 to compile")
+        vit.forward_features = torch.compile(vit.forward_features, dynamic=False)
+        log.info("fg2: DINOv2 forward_features compiled with torch.compile (first triggers are slow)")
 
     def encode_ground(self, image: torch.Tensor, ground_from_pixel: torch.Tensor,
-                      pixel_from_level: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(1, 3, H, W) in [0, 1] -> (DINOv2 features of the image resized to FG2's ground size, camera_k for
-        that size (1, 3, 3)). As FG2's KITTI loader: plain resize, intrinsics rows scaled, no normalisation."""
+                      pixel_from_level: torch.Tensor) -> GroundFeatures:
+        """(1, 3, H, W) in [0, 1] -> DINOv2 features of the image resized to FG2's ground size and camera_k for
+        that size (1, 3, 3), fp32 whatever the caller's autocast; on the fast path also the ground branch. As
+        FG2's KITTI loader: plain resize, intrinsics rows scaled, no normalisation."""
         gh, gw = self.settings.ground_size
         _, _, h, w = image.shape
-        resized = F.interpolate(image.float(), size=(gh, gw), mode="bilinear", align_corners=False, antialias=True)
-        scale = torch.diag(torch.tensor([gw / w, gh / h, 1.0], device=image.device))
-        camera_k = scale @ pixel_from_level.float()
-        return self.extractor(resized), camera_k
+        with torch.autocast(device_type=image.device.type, enabled=False):
+            resized = F.interpolate(image.float(), size=(gh, gw), mode="bilinear", align_corners=False,
+                                    antialias=True)
+            scale = torch.diag(torch.tensor([gw / w, gh / h, 1.0], device=image.device))
+            camera_k = scale @ pixel_from_level.float()
+        feature = self.extractor(resized)  # FG2's DinoExtractor: fp16 weights and input, fp32 out
+        if not self.fast:
+            return GroundFeatures(feature, camera_k)
+        with torch.autocast(device_type=image.device.type, enabled=False):  # the CVM runs in fp32
+            desc, keep = fg2_fast.ground_branch(self.cvm, feature.float(), camera_k, self.settings.ground_size)
+        return GroundFeatures(feature, camera_k, desc, keep)
 
     def aerial_input(self, aerial: torch.Tensor, m_per_px: float) -> torch.Tensor:
         """(B, 3, S, S) crops at m_per_px -> (B, 3, A, A): the central grid_size_h metres, resampled to FG2's
@@ -109,16 +166,21 @@ class PublishedFg2(nn.Module):
         grid = F.affine_grid(theta, [len(aerial), 3, s.aerial_size, s.aerial_size], align_corners=False)
         return F.grid_sample(aerial, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
 
-    def match_aerial(self, feats: tuple[torch.Tensor, torch.Tensor], aerial: torch.Tensor,
+    def match_aerial(self, feats: GroundFeatures, aerial: torch.Tensor,
                      m_per_px: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """FG2 on a batch of crops: R_img (B, 2, 2), t_px (B, 2) crop pixels (x right, y down) from the centre,
         mass (B,) in [0, 1]; NaN pose where the coupling is empty or degenerate."""
-        grd_feature, camera_k = feats
         B = len(aerial)
-        sat_feature = self.extractor(self.aerial_input(aerial, m_per_px))
-        with torch.autocast(device_type=aerial.device.type, enabled=False):  # mmcv's deformable attention: fp32
-            score, raw = self.cvm(grd_feature.float().repeat(B, 1, 1, 1), sat_feature.float(),
-                                  camera_k.float().repeat(B, 1, 1))
+        with torch.autocast(device_type=aerial.device.type, enabled=False):
+            sat_input = self.aerial_input(aerial, m_per_px)
+        sat_feature = self.extractor(sat_input)  # FG2's DinoExtractor: fp16 weights and input, fp32 out
+        with torch.autocast(device_type=aerial.device.type, enabled=False):  # CVM, pose and mass in fp32
+            if feats.desc is not None and feats.keep is not None:
+                sat_desc = fg2_fast.aerial_descriptors(self.cvm, sat_feature.float())
+                score, raw = fg2_fast.coupling(self.cvm, sat_desc, feats.desc, feats.keep)
+            else:  # FG2's own forward, its ground branch once per crop
+                score, raw = self.cvm(feats.feature.float().repeat(B, 1, 1, 1), sat_feature.float(),
+                                      feats.camera_k.float().repeat(B, 1, 1))
             R, t, ok = self._fit(score.float())
             mass = self._inlier_mass(score.float(), raw, R, t)
         nan = torch.full_like(t, float("nan"))

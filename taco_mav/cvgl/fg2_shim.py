@@ -20,6 +20,8 @@ from __future__ import annotations
 import configparser
 import contextlib
 import importlib
+import itertools
+import types
 import logging
 import os
 import random
@@ -30,7 +32,8 @@ from typing import Any, Iterator
 import numpy as np
 import torch
 
-from taco_mav.cvgl.fg2_published import Fg2Settings, PublishedFg2
+from taco_mav.cvgl.fg2_mmcv import mmcv_installed, stand_in_modules
+from taco_mav.cvgl.fg2_published import Fg2Settings, PublishedFg2, dinov2_precision_for
 from taco_mav.errors import MatcherError
 
 log = logging.getLogger(__name__)
@@ -73,7 +76,36 @@ def build_model(checkout: Path, checkpoint: Path, device: Any) -> PublishedFg2:
                               grid_size_v=settings.grid_size_v)
     _load_cvm(cvm, state, checkpoint)
     model = PublishedFg2(extractor, cvm, settings).to(device).eval()
+    dinov2_precision_for(model.extractor, device)
     log.info("fg2: published FG2 from %s, checkpoint %s, on %s", checkout, checkpoint, device)
+    return model
+
+
+def build_random_model(checkout: Path, device: Any, seed: int = 0) -> PublishedFg2:
+    """The published FG2 model from `checkout` with random weights (no checkpoint, no DINOv2 file): DINOv2 from
+    the checkout's own `DINO_modules.dinov2.vit_large` initialised after torch.manual_seed(seed), then the CVM
+    built as `build_model` does (FG2's seed, DinoExtractor, CVM). For benchmarks and equality tests only."""
+    checkout = Path(checkout)
+    if not (checkout / EXPECTED_MODULE).is_file():
+        raise MatcherError(f"fg2.checkout: {checkout} is not an FG2 checkout ({EXPECTED_MODULE} not found)")
+    settings = read_settings(checkout / CONFIG_FILE)
+    device = torch.device(device)
+    with fg2_import_scope(checkout, device):
+        model_kitti = _import_fg2(checkout, "models.model_kitti")
+        modules = _import_fg2(checkout, "models.modules")
+        dinov2 = _import_fg2(checkout, "DINO_modules.dinov2")
+        torch.manual_seed(seed)
+        vit = dinov2.vit_large(img_size=518, patch_size=14, init_values=1.0, ffn_layer="mlp", block_chunks=0)
+        dino_state = vit.state_dict()
+        del vit
+        torch.manual_seed(settings.seed)
+        extractor = modules.DinoExtractor(dinov2_weights=dino_state)
+        cvm = model_kitti.CVM(device, grd_bev_res=settings.grd_bev_res, grd_height_res=settings.grd_height_res,
+                              sat_bev_res=settings.sat_bev_res, grid_size_h=settings.grid_size_h,
+                              grid_size_v=settings.grid_size_v)
+    model = PublishedFg2(extractor, cvm, settings).to(device).eval()
+    dinov2_precision_for(model.extractor, device)
+    log.info("fg2: published FG2 from %s with RANDOM weights (seed %d) on %s", checkout, seed, device)
     return model
 
 
@@ -179,13 +211,40 @@ def _import_fg2(checkout: Path, name: str) -> Any:
             from None
 
 
+_scopes = itertools.count(1)
+
+
+def _keep_private(name: str, module: types.ModuleType, prefix: str) -> None:
+    """Re-register an FG2 module imported in a scope as `prefix.name` (its __name__ and the __module__ of what it
+    defines follow), so tools that look modules up by name (torch.compile's guards, pickle) still find it
+    while FG2's bare top-level names (`models`, `utils`, ...) are given back."""
+    new = f"{prefix}.{name}"
+    for obj in list(vars(module).values()):
+        if isinstance(obj, (type, types.FunctionType)) and getattr(obj, "__module__", None) == name:
+            try:
+                obj.__module__ = new
+            except (AttributeError, TypeError):  # extension types
+                pass
+    module.__name__ = new
+    sys.modules[new] = module
+
+
 @contextlib.contextmanager
 def fg2_import_scope(checkout: Path, device: torch.device) -> Iterator[None]:
     """Run with the checkout as working directory and first on sys.path, FG2's package names free in
     sys.modules; afterwards restore the directory, sys.path, sys.modules, the RNG states (torch, numpy,
-    random) and torch's determinism flags."""
+    random) and torch's determinism flags. The FG2 modules imported inside stay registered under a private
+    name, `taco_mav_fg2_<n>.<name>` (see `_keep_private`); the bare names are removed again."""
+    checkout = Path(checkout).resolve()  # it becomes the working directory: a relative path would break
     cwd, path = os.getcwd(), list(sys.path)
-    shadowed = {k: sys.modules.pop(k) for k in list(sys.modules) if k.split(".")[0] in FG2_PACKAGES}
+    stand_in = {} if device.type == "cuda" and mmcv_installed() else stand_in_modules()
+    if stand_in:
+        log.info("fg2: FG2's deformable attention and FFN run on taco_mav's PyTorch stand-in for mmcv "
+                 "(taco_mav.cvgl.fg2_mmcv; %s)", "mmcv is not installed" if not mmcv_installed()
+                 else f"mmcv's own {device.type} path returns NaN for FG2's KITTI grid")
+    owned = FG2_PACKAGES + (("mmcv",) if stand_in else ())
+    shadowed = {k: sys.modules.pop(k) for k in list(sys.modules) if k.split(".")[0] in owned}
+    sys.modules.update(stand_in)
     flags = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled(),
              torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic)
     np_state, py_state = np.random.get_state(), random.getstate()
@@ -198,8 +257,14 @@ def fg2_import_scope(checkout: Path, device: torch.device) -> Iterator[None]:
         finally:
             os.chdir(cwd)
             sys.path[:] = path
-            for k in [k for k in sys.modules if k.split(".")[0] in FG2_PACKAGES]:
-                del sys.modules[k]
+            prefix = f"taco_mav_fg2_{next(_scopes)}"
+            package = types.ModuleType(prefix, f"FG2 modules imported from {checkout}")
+            package.__path__ = []
+            sys.modules[prefix] = package
+            for k in [k for k in sys.modules if k.split(".")[0] in owned]:
+                module = sys.modules.pop(k)
+                if k.split(".")[0] in FG2_PACKAGES and isinstance(module, types.ModuleType):
+                    _keep_private(k, module, prefix)
             sys.modules.update(shadowed)
             torch.use_deterministic_algorithms(flags[0], warn_only=flags[1])
             torch.backends.cudnn.benchmark, torch.backends.cudnn.deterministic = flags[2], flags[3]

@@ -18,7 +18,7 @@ from taco_mav.errors import ConfigError, DataError
 from taco_mav.evaluation.export import write_kitti, write_tum
 from taco_mav.evaluation.plots import plot_run
 from taco_mav.evaluation.runner import DriveRun, run_drive
-from taco_mav.evaluation.summary import ablation_md, errors, metrics, summary, table_md
+from taco_mav.evaluation.summary import ablation_md, errors, made_by, metrics, summary, table_md
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +117,7 @@ def _run_all(drives: list, profile: Profile, req: EvalRequest) -> dict[str, Driv
     return runs
 
 
-def _write_run(run: DriveRun, folder: Path, plots: bool) -> None:
+def _write_run(run: DriveRun, folder: Path, plots: bool, label: str = "") -> None:
     folder.mkdir(parents=True, exist_ok=True)
     write_tum(folder / "truth.tum", run.t, run.truth_xy, run.truth_theta)
     write_tum(folder / "online.tum", run.t, run.online_xy, run.online_theta)
@@ -133,7 +133,7 @@ def _write_run(run: DriveRun, folder: Path, plots: bool) -> None:
                                 "xy": None if o.xy is None else [round(float(v), 4) for v in o.xy],
                                 "yaw_residual": round(o.yaw_residual, 5), "weights": [round(w, 4) for w in o.weights]}) + "\n")
     if plots:
-        plot_run(run, errors(run), folder)
+        plot_run(run, errors(run), folder, label)
 
 
 def evaluate(req: EvalRequest) -> dict[str, Any]:
@@ -144,8 +144,9 @@ def evaluate(req: EvalRequest) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     runs = _run_all(drives, profile, req)
     per_seq = {k: metrics(r) for k, r in runs.items()}
+    label = made_by(profile.estimator.value, profile.matcher)  # on every table and plot
     for k, r in runs.items():
-        _write_run(r, out / k, req.plots)
+        _write_run(r, out / k, req.plots, label)
     results: dict[str, Any] = {
         "sequences": per_seq,
         "summary": summary(per_seq),
@@ -153,7 +154,7 @@ def evaluate(req: EvalRequest) -> dict[str, Any]:
         "run": {"matcher": profile.matcher, "estimator": profile.estimator.value, "seed": req.seed,
                 "matcher_latency_s": req.latency_s, "apply_on_arrival": profile.latency.apply_on_arrival},
     }
-    table = table_md(per_seq)
+    table = table_md(per_seq, label)
     names = list(ABLATIONS) if "all" in req.ablations else list(req.ablations)
     if names:
         unknown = [n for n in names if n not in ABLATIONS]

@@ -53,3 +53,36 @@ def steady_state_rmse(errors: np.ndarray, times: np.ndarray, accepted_capture_ti
         return float("nan")
     t3 = sorted(accepted_capture_times)[2]
     return rmse(np.asarray(errors)[np.asarray(times) >= t3])
+
+
+# --------------------------------------------------------------------------------------------- honest accuracy
+# h_acc, the horizontal accuracy the Localiser reports (GPS_INPUT.horiz_accuracy; ArduPilot's EKF3 takes it as
+# the 1-sigma of each of the north and east position observations), is a PER-AXIS 1-sigma: the square root of
+# the largest eigenvalue of the reported 2x2 position covariance, i.e. the 1-sigma along the worst direction.
+# It is not a CEP-like radius. Coverage is therefore the fraction of frames whose RADIAL error |e| is within
+# k h_acc; for a Gaussian error with exactly that covariance it lies between the isotropic and the
+# one-dimensional case (the ranges below), so "calibrated" means inside these bands, not at 68 / 95 %.
+COVERAGE_GAUSSIAN_RANGE = {1: (1.0 - math.exp(-0.5), math.erf(1.0 / math.sqrt(2.0))),  # 39.3 .. 68.3 %
+                           2: (1.0 - math.exp(-2.0), math.erf(2.0 / math.sqrt(2.0)))}  # 86.5 .. 95.4 %
+
+
+def h_acc_from_var(var: np.ndarray) -> np.ndarray:
+    """Per-axis 1-sigma horizontal accuracy, metres (N,): sqrt of the largest eigenvalue of each 2x2 position
+    covariance given as rows (Pxx, Pxy, Pyy) in m^2, shape (N, 3)."""
+    v = np.asarray(var, dtype=float).reshape(-1, 3)
+    pxx, pxy, pyy = v[:, 0], v[:, 1], v[:, 2]
+    lam = 0.5 * (pxx + pyy) + np.sqrt(0.25 * (pxx - pyy) ** 2 + pxy**2)
+    return np.sqrt(np.maximum(lam, 0.0))
+
+
+def coverage(errors: np.ndarray, h_acc: np.ndarray, k: float) -> float:
+    """Fraction of frames whose radial horizontal error (m, (N,)) is within k reported per-axis 1-sigma h_acc
+    (m, (N,)); NaN for no frames. A non-finite h_acc covers nothing."""
+    e = np.asarray(errors, dtype=float)
+    s = np.asarray(h_acc, dtype=float)
+    if e.shape != s.shape:
+        raise ValueError(f"coverage: errors {e.shape} and h_acc {s.shape} differ in shape")
+    if e.size == 0:
+        return float("nan")
+    with np.errstate(invalid="ignore"):
+        return float(np.mean(np.isfinite(s) & (e <= k * s)))

@@ -42,8 +42,11 @@ def _mosaic_background(ax, run: DriveRun, margin_m: float = 60.0) -> None:
         log.warning("no mosaic background for %s: %s", run.name, exc)
 
 
-def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> list[Path]:
-    """Write trajectory.png, error_vs_distance.png and error_cdf.png into out_dir; returns the paths."""
+def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path, label: str = "") -> list[Path]:
+    """Write trajectory.png, error_vs_distance.png and error_cdf.png into out_dir; returns the paths. Each
+    title names the drive and `label`, what made the run (`summary.made_by`: estimator and matcher)."""
+    name = run.sequence or run.name
+    suffix = f" ({label})" if label else ""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     fig, ax = plt.subplots(figsize=(8, 8))
@@ -65,7 +68,7 @@ def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> lis
     ax.set_aspect("equal")
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
-    ax.set_title(f"{run.sequence or run.name}: trajectories")
+    ax.set_title(f"{name}: trajectories{suffix}")
     ax.legend(loc="best", fontsize=8)
     paths.append(out_dir / "trajectory.png")
     fig.savefig(paths[-1], dpi=110, bbox_inches="tight")
@@ -79,6 +82,7 @@ def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> lis
     ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel("distance travelled (km)")
     ax.set_ylabel("position error (m)")
+    ax.set_title(f"{name}: error vs distance{suffix}", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     paths.append(out_dir / "error_vs_distance.png")
@@ -93,6 +97,7 @@ def plot_run(run: DriveRun, errors: dict[str, np.ndarray], out_dir: Path) -> lis
     ax.set_xscale("log")
     ax.set_xlabel("position error (m)")
     ax.set_ylabel("fraction of frames")
+    ax.set_title(f"{name}: error CDF{suffix}", fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     paths.append(out_dir / "error_cdf.png")

@@ -58,6 +58,14 @@ class DriveRun:
     utm_epsg: int
     mosaic: str | None = None
     extra: dict = field(default_factory=dict)
+    # The position covariance the Localiser reported (Estimate.cov_xy: what the daemon sends as h_acc) at each
+    # frame, columns Pxx, Pxy, Pyy in m^2 (N, 3); None where not recorded (then online_var stands in).
+    reported_var: np.ndarray | None = None
+
+
+def _cov3(cov: np.ndarray) -> tuple[float, float, float]:
+    """(Pxx, Pxy, Pyy) of a 2x2 covariance, m^2."""
+    return float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
 
 
 def _frame_source(drive: Drive, matcher: str, camera: GroundCamera):
@@ -107,9 +115,12 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     dead = Preintegrator(t0, x0, y0, th0, drive.start.speed, allow_reverse=params.allow_reverse,
                          max_dt_s=params.max_dt_s, heading_offset=convergence)
     dead_xy = np.zeros((len(imu), 2))
+    reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):
         loc.add_imu(sample)
+        if len(loc.track) > len(reported):  # a frame closed: what the daemon would report now
+            reported.append(_cov3(loc.estimate().cov_xy))
         dead.add(sample)
         dead_xy[i] = (dead.x, dead.y)
         q = loc.poll_query()
@@ -132,6 +143,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         smoothed=smoothed, queries=list(loc.queries), outcomes=list(loc.outcomes), frames_available=n_frames,
         matcher_s=service.stats.matcher_s, wall_s=time.perf_counter() - wall0, origin_utm=origin,
         utm_epsg=int(drive.utm_epsg), mosaic=str(drive.mosaic) if drive.mosaic else None,
+        reported_var=np.array(reported) if len(reported) == len(t) else None,
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
                "lock_events": loc.lock_events if isinstance(loc, PlusLocaliser) else []},

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.evaluation.metrics import path_length_m, position_errors, rmse, steady_state_rmse
+from taco_mav.evaluation.metrics import coverage, h_acc_from_var, path_length_m, position_errors, rmse, steady_state_rmse
 from taco_mav.evaluation.runner import DriveRun
 
 REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")
@@ -57,6 +57,7 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "imu_only_drift_m_per_km": _num(per_km(rmse(err["imu_only"]))),
         "rejected": dict(sorted(reasons.items())),
         "honest_fraction": _num(honest_fraction(err["online"], run.online_var)),
+        **accuracy_coverage(err["online"], reported_var(run)),
         "lock_losses": sum(1 for _, kind, _ in run.extra.get("lock_events", []) if kind == "lock_lost"),
         "lock_recoveries": sum(1 for _, kind, _ in run.extra.get("lock_events", []) if kind == "recovered"),
         "loop_closures": len(run.smoothed.loop_closures) if run.smoothed is not None else 0,
@@ -66,6 +67,29 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "duration_s": _num(float(run.t[-1] - run.t[0])),
         "wall_s": _num(run.wall_s),
     }
+
+
+def reported_var(run: DriveRun) -> np.ndarray:
+    """The reported position covariance per frame (Pxx, Pxy, Pyy, m^2): what the Localiser's estimate said,
+    else the filter's own."""
+    return run.reported_var if run.reported_var is not None else run.online_var
+
+
+def accuracy_coverage(err: np.ndarray, var: np.ndarray) -> dict[str, Any]:
+    """How honest the reported accuracy is over one run: the fraction of frames whose radial error (m) lies
+    within 1 and 2 reported h_acc (a per-axis 1-sigma, see metrics.COVERAGE_GAUSSIAN_RANGE), the median h_acc
+    and the frame count (for pooling)."""
+    h = h_acc_from_var(var)
+    return {"coverage_1sigma": _num(coverage(err, h, 1.0)), "coverage_2sigma": _num(coverage(err, h, 2.0)),
+            "h_acc_median_m": _num(float(np.median(h))) if len(h) else None, "coverage_frames": int(len(err))}
+
+
+def pooled_coverage(per_seq: dict[str, dict[str, Any]], key: str) -> float | None:
+    """A coverage over all frames of all sequences (each sequence weighted by its frame count)."""
+    rows = [(m[key], m["coverage_frames"]) for m in per_seq.values()
+            if m.get(key) is not None and m.get("coverage_frames")]
+    n = sum(f for _, f in rows)
+    return _num(sum(c * f for c, f in rows) / n) if n else None
 
 
 def honest_fraction(err: np.ndarray, var: np.ndarray) -> float:
@@ -85,7 +109,9 @@ def summary(per_seq: dict[str, dict[str, Any]]) -> dict[str, Any]:
     names = list(per_seq)
     out: dict[str, Any] = {"median_ate_m": med("ate_m", names), "median_ate_imu_only_m": med("ate_imu_only_m", names),
                            "median_ate_smoothed_m": med("ate_smoothed_m", names),
-                           "median_fixes_per_km": med("fixes_per_km", names), "sequences_run": len(names)}
+                           "median_fixes_per_km": med("fixes_per_km", names), "sequences_run": len(names),
+                           "coverage_1sigma": pooled_coverage(per_seq, "coverage_1sigma"),
+                           "coverage_2sigma": pooled_coverage(per_seq, "coverage_2sigma")}
     for group, members in (("representative", REPRESENTATIVE), ("non_representative", NON_REPRESENTATIVE)):
         if any(m in per_seq for m in members):
             out[f"{group}_median_ate_m"] = med("ate_m", members)
@@ -104,12 +130,19 @@ def _fmt(v: Any) -> str:
 ROWS = (("IMU only ATE (m)", "ate_imu_only_m"), ("TACO ATE (m)", "ate_m"), ("TACO ATE (m/km)", "ate_m_per_km"),
         ("TACO steady-state RMSE (m)", "steady_rmse_m"), ("TACO fixes/km", "fixes_per_km"),
         ("TACO smoothed (m)", "ate_smoothed_m"), ("attempts / accepted", None), ("camera duty cycle", "camera_duty_cycle"),
-        ("max error (m)", "max_error_m"), ("length (km)", "length_km"))
+        ("max error (m)", "max_error_m"), ("length (km)", "length_km"),
+        ("error within 1 h_acc (1-sigma)", "coverage_1sigma"), ("error within 2 h_acc (2-sigma)", "coverage_2sigma"))
 
 
-def table_md(per_seq: dict[str, dict[str, Any]]) -> str:
+def made_by(estimator: str, matcher: str) -> str:
+    """What made a table or plot, said the same way everywhere: "estimator paper, matcher emulator"."""
+    return f"estimator {estimator}, matcher {matcher}"
+
+
+def table_md(per_seq: dict[str, dict[str, Any]], label: str = "") -> str:
     """A Markdown table laid out like the paper's Table I: representative sequences, their median, then the
-    non-representative ones and their median (whichever were run), then any other drives."""
+    non-representative ones and their median (whichever were run), then any other drives. `label` (see
+    `made_by`) is written above it."""
     rep = [s for s in REPRESENTATIVE if s in per_seq]
     non = [s for s in NON_REPRESENTATIVE if s in per_seq]
     other = [s for s in per_seq if s not in rep and s not in non]
@@ -120,8 +153,9 @@ def table_md(per_seq: dict[str, dict[str, Any]]) -> str:
     if non:
         cols.append(("Median (non-rep.)", non))
     cols += [(s, s) for s in other]
-    lines = ["| System | " + " | ".join(c for c, _ in cols) + " |", "|---" * (len(cols) + 1) + "|"]
-    for label, key in ROWS:
+    lines = [f"TACO, {label}", ""] if label else []
+    lines += ["| System | " + " | ".join(c for c, _ in cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for row, key in ROWS:
         cells = []
         for _, src in cols:
             if isinstance(src, list):
@@ -131,7 +165,7 @@ def table_md(per_seq: dict[str, dict[str, Any]]) -> str:
                 cells.append(f"{per_seq[src]['attempts']} / {per_seq[src]['accepted']}")
             else:
                 cells.append(_fmt(per_seq[src].get(key)))
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

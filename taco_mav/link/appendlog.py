@@ -1,12 +1,32 @@
 """A thread-safe append-only log file, flushed at most every `flush_s` seconds and on close (so a crash loses
-at most that much); the tlog and the JSONL event log are both written through it."""
+at most that much); the tlog and the JSONL event log are both written through it. `session_dir` gives each
+daemon session (`taco-mav run --log-dir ROOT`) its own folder, so no session appends to an older one's files."""
 
 from __future__ import annotations
 
 import threading
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO
+
+SESSION_FORMAT = "%Y%m%dT%H%M%SZ"  # UTC start time, sorts in time order
+
+
+def session_dir(root: str | Path, now: datetime | None = None) -> Path:
+    """Create and return a new folder ROOT/<UTC start time> (ROOT/<time>-2, -3, ... when started within the
+    same second); ROOT is created if absent."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    stamp = (now or datetime.now(timezone.utc)).astimezone(timezone.utc).strftime(SESSION_FORMAT)
+    for n in range(1, 1000):
+        folder = root / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{root}: 999 sessions started at {stamp}")
 
 
 class AppendLog:

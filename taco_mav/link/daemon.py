@@ -1,6 +1,10 @@
 """The daemon loop (`taco-mav run`): MAVLink IMU/attitude in, TACO Localiser, CVGL fixes from a worker thread,
 GPS-style position out at a steady rate.
 
+This module holds the lifecycle and the loop; the methods of one concern each live in a mixin: inputs
+(`daemon_inputs`: message dispatch, IMU, attitude), origin and re-anchoring (`daemon_origin`: start position,
+reboots, IMU gaps, real GNSS) and outputs (`daemon_outputs`: position messages, health, STATUSTEXT, summary).
+
 Threads: the loop thread owns the Link and the Localiser (every Localiser call happens here); the fix pipeline
 (`fixes.FixPipeline`: camera, map, matcher worker) runs FixService.answer in the worker thread and posts results
 to a queue; a VideoCapture camera grabs in its own thread. Time: the filter runs on the autopilot clock (IMU
@@ -21,25 +25,24 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.types import ImuSample
 from taco_mav.cvgl.base import Matcher
 from taco_mav.errors import ConfigError
-from taco_mav.link import encoders
-from taco_mav.link.anchor import GNSS_RANK, NO_ORIGIN_TEXTS, Anchor, OriginCandidate, OriginChooser
+from taco_mav.link.anchor import Anchor, OriginCandidate, OriginChooser
 from taco_mav.link.connection import Link
-from taco_mav.link.decoders import (GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders,
-                                    GnssReading, ImuReading)
+from taco_mav.link.daemon_inputs import DaemonInputs
+from taco_mav.link.daemon_origin import DaemonOrigin
+from taco_mav.link.daemon_outputs import DaemonOutputs
+from taco_mav.link.decoders import IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders, ImuReading
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
 from taco_mav.link.gcs import GCS_HEALTH_HZ, GcsHealth
-from taco_mav.link.gnss import GnssEvent, GnssTracker
+from taco_mav.link.gnss import GnssTracker
 from taco_mav.link.health import LinkWatch
-from taco_mav.link.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S, InputSources
-from taco_mav.link.imu_timeline import ImuTimeline, Verdict
+from taco_mav.link.imu_source import InputSources
+from taco_mav.link.imu_timeline import ImuTimeline
+from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE
 from taco_mav.link.motion import MotionPipeline
 from taco_mav.link.options import DaemonOptions, DaemonStats
 from taco_mav.link.output import OutputStage
@@ -50,17 +53,10 @@ from taco_mav.link.timesync import ClockMap
 
 log = logging.getLogger(__name__)
 
-SEV_ERROR, SEV_WARNING, SEV_NOTICE, SEV_INFO = 3, 4, 5, 6
-MAV_AUTOPILOT_INVALID = 8
-MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER = 6, 18
-MAV_MODE_FLAG_SAFETY_ARMED = 128
-DRIVE_THROTTLE_MIN_PCT = 3  # VFR_HUD throttle at or above this (armed) means the autopilot drives
-
-
 __all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
 
 
-class Daemon:
+class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
     """One daemon run. `run()` blocks until `stop()` (or a signal via `run_daemon`); `start()` runs it in a
     thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs); matcher:
     use this matcher instead of the profile's (tests, embedding)."""
@@ -107,13 +103,16 @@ class Daemon:
         self._thread.start()
 
     def stop(self) -> None:
+        """Ask the loop to stop (any thread); `join` waits for it."""
         self.stop_event.set()
 
     def join(self, timeout: float | None = None) -> None:
+        """Wait for the loop thread started by `start`."""
         if self._thread is not None:
             self._thread.join(timeout)
 
     def _setup(self) -> None:
+        """Open logs, the link, the fix pipeline and the camera motion; request streams; start the timers."""
         p, opt = self.profile, self.opt
         log_dir = Path(opt.log_dir) if opt.log_dir else None
         if log_dir is not None:
@@ -174,6 +173,7 @@ class Daemon:
         return self.exit_code or 0
 
     def _shutdown(self) -> None:
+        """Stop threads, write the stop event with the summary, close the link and logs."""
         if self.link is not None and self.link.target_system:
             self._status(SEV_NOTICE, "stopping", key=None)
         if self.motion is not None:
@@ -189,6 +189,7 @@ class Daemon:
 
     # ------------------------------------------------------------------ loop
     def _step(self) -> None:
+        """One loop pass: receive (at most until the next output or heartbeat is due), handle, collect fixes."""
         now = self.clock()
         due = [self.t_output.next_due, self.t_heartbeat.next_due]
         timeout = min(0.02, max(0.0, min(due) - now))
@@ -208,6 +209,7 @@ class Daemon:
         self._periodic(self.clock())
 
     def _periodic(self, now: float) -> None:
+        """Whatever is due at companion time `now` (s): outputs, heartbeat, time sync, requests, origin, health."""
         link = self.link
         assert link is not None
         if self.t_output.due(now):
@@ -228,316 +230,6 @@ class Daemon:
         if self.linkwatch.check(now):
             log.warning("link lost: nothing from the autopilot for %.1f s", self.opt.link_timeout_s)
             self.events.write("link_lost", silent_s=now - (self.linkwatch.last_heard or now))
-
-    def _heard(self) -> None:
-        """A message from our autopilot: ends a link outage (event + STATUSTEXT, now that it is reachable)."""
-        outage = self.linkwatch.heard(self.clock())
-        if outage is not None:
-            text = f"link restored after {outage:.1f}s"
-            log.warning("%s", text)
-            self.events.write("link_restored", outage_s=outage)
-            self._status(SEV_WARNING, text, key=None)
-
-    # ------------------------------------------------------------------ inputs
-    def _handle(self, msg: Any, received: float) -> None:
-        kind = msg.get_type()
-        link = self.link
-        assert link is not None
-        if kind == "HEARTBEAT":
-            if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type not in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER)
-                    and (self.profile.link.target_sysid in (0, msg.get_srcSystem()))):
-                if link.adopt_autopilot(msg):
-                    self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
-                if (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component):
-                    self._heard()
-                    self._armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
-            return
-        if not link.target_system:
-            self.decoders.reject(kind, "before_autopilot")
-            return
-        if (msg.get_srcSystem(), msg.get_srcComponent()) != (link.target_system, link.target_component):
-            self.decoders.reject(kind, "foreign_source")  # only the adopted autopilot's messages are acted on
-            return
-        self._heard()
-        if kind in IMU_MESSAGES:
-            self._on_imu(msg, received)
-        elif kind in ATTITUDE_MESSAGES:
-            self.attitude = self.sources.attitude_reading(msg, self.decoders, self.clock()) or self.attitude
-            self._source_switches()
-        elif kind in GNSS_MESSAGES:
-            self._on_gnss(msg)
-        elif kind in ORIGIN_MESSAGES:
-            o = self.decoders.origin(msg) if self.origin is None else None
-            if o is not None:
-                self._offer_origin(OriginCandidate(o.lat, o.lon, o.alt, 0.0, None, o.source))
-        elif kind == "SYSTEM_TIME":
-            self.clockmap.on_system_time(msg.time_boot_ms)
-        elif kind == "TIMESYNC":
-            if msg.tc1 == 0:  # the autopilot asks us: answer with our clock
-                link.send(link.mav.timesync_encode(self.clockmap.request_ns(), msg.ts1))
-            else:
-                self.clockmap.on_timesync_reply(msg.tc1, msg.ts1)
-        elif kind == "SIMSTATE":
-            self._on_simstate(msg)
-        elif kind == "VFR_HUD":
-            self._on_vfr_hud(msg)
-        elif kind == "COMMAND_ACK" and self.requester is not None:
-            self.requester.on_message(msg, link.target_system, link.target_component)
-        elif kind == "PARAM_VALUE" and self.params_check is not None:
-            warning = self.params_check.on_message(msg)
-            if warning:
-                self._status(SEV_ERROR, warning, key=None)
-                self.events.write("param_check", warning=warning)
-
-    def _on_imu(self, msg: Any, received: float) -> None:
-        r = self.sources.imu_reading(msg, self.decoders, self.clock())  # the chosen stream's valid samples only
-        self._source_switches()
-        if r is None:
-            return
-        check = self.timeline.check(r.t, self.loc is not None)
-        if check.outlier:
-            self.stats.dropped["imu_time_outlier"] += 1
-        if check.verdict in (Verdict.UNCONFIRMED, Verdict.OUT_OF_ORDER):
-            self.stats.dropped[check.verdict.value] += 1
-            return
-        if check.verdict is Verdict.REBOOT:
-            self._reboot(check.t_from, check.t_to)
-        elif check.verdict is Verdict.GAP:
-            self._imu_gap(check.t_from, check.t_to)
-        self.clockmap.on_autopilot_time(r.t)
-        self.last_imu = r
-        self._last_imu_clock = self.clock()
-        if self.attitude is None:
-            self.stats.dropped["imu_before_attitude"] += 1
-            return
-        a = self.attitude.at(r.t)
-        if r.t - self.attitude.t > ATTITUDE_STALE_S:  # no valid attitude for a while: the last one is used
-            self.stats.attitude_stale += 1
-            self._status(SEV_WARNING, f"attitude stale {r.t - self.attitude.t:.1f}s", key="attitude_stale")
-        if self.loc is None:
-            if self.origin is None:
-                self.stats.dropped["imu_before_origin"] += 1
-                return
-            self.loc = self.anchor.localiser(r.t, a.yaw)
-        assert self.loc is not None
-        self.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
-        self.stats.imu_samples += 1
-        self.stats.imu_to_estimate_s.append(time.perf_counter() - received)
-
-    def _source_switches(self) -> None:
-        """Log, count (summary "sources") and write the IMU / attitude source chosen or changed; a fallback
-        also goes to the ground station."""
-        for what, sw in self.sources.take_switches():
-            self.events.write("input_source", input=what, old=sw.old, new=sw.new, silent_s=sw.silent_s)
-            if sw.old is None:
-                log.info("%s input: %s", what.upper() if what == "imu" else what, sw.new)
-                continue
-            text = f"{what} {sw.old} silent {sw.silent_s:.1f}s: using {sw.new}"
-            log.warning("%s", text)
-            self._status(SEV_WARNING, text, key=None)
-
-    def _on_vfr_hud(self, msg: Any) -> None:
-        """The autopilot's throttle output (%): armed with throttle means it drives, which vetoes taco+'s
-        zero-velocity updates (a smooth cruise looks still to the IMU, issue 19)."""
-        throttle = getattr(msg, "throttle", None)
-        if not isinstance(throttle, int) or not -100 <= throttle <= 100:
-            self.decoders.reject("VFR_HUD", "range")
-            return
-        set_drive = getattr(self.loc, "set_drive_command", None)
-        if set_drive is not None and self.last_imu is not None and self._armed is not None:
-            set_drive(self.last_imu.t, self._armed and abs(throttle) >= DRIVE_THROTTLE_MIN_PCT)
-
-    def _on_simstate(self, msg: Any) -> None:
-        pose = self.decoders.simstate(msg)
-        if pose is None or self.last_imu is None:
-            return
-        self.fixes.on_pose(self.last_imu.t, pose, self.origin)
-
-    # ------------------------------------------------------------------ origin and re-anchoring
-    @property
-    def origin(self) -> encoders.Origin | None:
-        return self.anchor.origin
-
-    def _set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None, source: str) -> None:
-        origin = self.anchor.set_origin(lat, lon, alt, speed, course)
-        log.info("origin from %s: %.7f, %.7f, %.1f m (UTM EPSG:%d), speed %.2f m/s", source, lat, lon, alt,
-                 origin.projector.epsg, speed)
-        self.events.write("origin", source=source, lat=lat, lon=lon, alt=alt, speed=speed, course_ned=course,
-                          epsg=origin.projector.epsg, convergence_rad=origin.convergence)
-        self._status(SEV_INFO, f"origin {lat:.6f},{lon:.6f} ({source})", key=None)
-        self.fixes.on_origin(origin)
-
-    def _reboot(self, t_last: float, t_new: float) -> None:
-        """Autopilot clock went back: re-anchor at the current estimate on the new clock."""
-        self.stats.reboots += 1
-        text = f"autopilot reboot? time {t_last:.1f}s -> {t_new:.1f}s: re-anchored"
-        log.warning("%s", text)
-        self.events.write("reboot", t_last=t_last, t_new=t_new)
-        self._status(SEV_WARNING, text, key="reboot")
-        self.clockmap.reset()
-        self.fixes.clear_truth()
-        if self.loc is not None and self.attitude is not None:
-            self.loc = self.anchor.restarted(self.loc, self.attitude.yaw, t_new)
-        self.last_imu = None
-
-    def _imu_gap(self, t_last: float, t_new: float) -> None:
-        """No IMU from t_last to t_new (autopilot s), longer than the preintegrator bridges (imu.max_dt_s): the
-        motion in between is unknown. Re-anchor at the estimate carried on at its speed and heading, with the
-        1-sigma grown over the gap, so the output stays degraded until fixes bring it back."""
-        assert self.loc is not None and self.attitude is not None
-        c = self.anchor.carried(self.loc, t_last, t_new)
-        self.stats.imu_gaps += 1
-        log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", t_new - t_last, abs(c.carried_m), c.sigma)
-        self.events.write("imu_gap", t_last=t_last, t_new=t_new, sigma_h=c.sigma, carried_m=c.carried_m)
-        self.loc = self.anchor.localiser(t_new, self.attitude.yaw, c.xy, c.heading, c.speed, c.sigma)
-
-    def _offer_origin(self, c: OriginCandidate) -> None:
-        """An origin offered (--origin, EKF origin, home, a steady real GNSS): `OriginChooser` says when to take
-        which."""
-        chosen = self.origin_chooser.offer(c, self.clock())
-        if chosen is not None:
-            self._take_origin(chosen)
-
-    def _take_origin(self, c: OriginCandidate) -> None:
-        self._set_origin(c.lat, c.lon, c.alt, c.speed, c.course, c.source)
-        if c.rank == GNSS_RANK:
-            self.anchor.set_start((0.0, 0.0), c.speed, c.course, None, c.t)  # carried to the first IMU sample
-        elif (fresh := self.gnss.fresh(self.clock())) is not None:
-            self._start_from_gnss(fresh)
-
-    def _start_from_gnss(self, r: GnssReading) -> None:
-        """Before the first anchoring: a real fix's speed and course, and its position if the vehicle has moved
-        away from the offered origin (`Anchor.start_from_fix`)."""
-        assert self.origin is not None
-        f = self.gnss.fix(r, self.origin, None)
-        if f is not None and self.anchor.start_from_fix(f, r.speed, r.course_ned):
-            self.events.write("start_from_gnss", instance=r.instance, x=float(f.xy[0]), y=float(f.xy[1]),
-                              sigma_h_m=f.sigma_h_m)
-
-    def _on_gnss(self, msg: Any) -> None:
-        """GPS_RAW_INT / GPS2_RAW: a real instance's 3D fix offers the origin, then goes to the Localiser
-        (`add_gnss`); our own instance's echo is only counted (`GnssTracker`)."""
-        instance, now = GNSS_MESSAGES[msg.get_type()], self.clock()
-        reading = self.decoders.gnss(msg) if self.gnss.is_real(instance) else None
-        r, events = self.gnss.on_message(instance, reading, int(msg.fix_type), now, self.origin)
-        self._gnss_events(events)
-        if r is None:
-            return
-        if self.origin is None:
-            if self.gnss.steady:
-                self._offer_origin(OriginCandidate(r.lat, r.lon, r.alt, r.speed, r.course_ned, msg.get_type(), r.t))
-            return
-        if self.loc is None:
-            self._start_from_gnss(r)
-            return
-        fix = self.gnss.fix(r, self.origin, self.last_imu.t if self.last_imu is not None else None)
-        if fix is not None:
-            self._gnss_events(self.gnss.outcome(self.loc.add_gnss(fix), now))
-
-    def _gnss_events(self, events: list[GnssEvent]) -> None:
-        for e in events:
-            log.warning("%s", e.text) if e.severity == SEV_WARNING else log.info("%s", e.text)
-            self.events.write(e.kind, **e.fields)
-            self._status(e.severity if e.severity is not None else SEV_INFO, e.text, key=None)
-
-    def _origin_tick(self, now: float) -> None:
-        """Periodic: take an origin whose grace ran out; while none, ask for GPS_GLOBAL_ORIGIN / HOME_POSITION
-        and say every 10 s how to give one; GNSS loss by silence."""
-        link = self.link
-        assert link is not None
-        if self.origin is None:
-            if link.target_system:
-                self.origin_chooser.heard(now)
-            chosen = self.origin_chooser.poll(now)
-            if chosen is not None:
-                self._take_origin(chosen)
-        if self.origin is None:
-            self.origin_request.tick(now, link.target_system, link.target_component)
-            if self.origin_chooser.notice_due(now):
-                ours = f"GPS{self.profile.output.gps_id + 1}" if "gps_input" in self.profile.output.messages else None
-                log.warning("no origin yet: give one with --origin LAT,LON[,ALT], set the EKF origin or home from "
-                            "the ground station, or connect a real GNSS with a 3D fix%s",
-                            f" (not {ours}: that instance carries our own output)" if ours else "")
-                self.events.write("no_origin", notices=self.origin_chooser.notices, gnss=self.gnss.summary())
-                for text in NO_ORIGIN_TEXTS:
-                    self._status(SEV_WARNING, text, key=None)
-        self._gnss_events(self.gnss.tick(now))
-
-    # ------------------------------------------------------------------ outputs
-    def _send_outputs(self, now: float) -> None:
-        if self.loc is None or self.origin is None or self.link is None:
-            return
-        gyro = self.last_imu.gyro_frd if self.last_imu else (0.0, 0.0, 0.0)
-        for msg in self.output.messages(self.loc.estimate(), now - self._last_imu_clock, self.origin, self.link.mav,
-                                        self.wall_clock(), self.clockmap.now_autopilot(), self.link.target_system,
-                                        self.attitude, gyro, self.stats.reboots):
-            self.link.send(msg)
-        self.stats.output_times.append(now)
-
-    def _gcs_health(self, now: float) -> None:
-        """NAMED_VALUE_FLOAT health for the ground station; a change of mode: log, event and STATUSTEXT."""
-        link = self.link
-        assert link is not None
-        svc = self.fixes.service.stats if self.fixes.service is not None else None
-        gnss = self.gnss.summary()
-        rep = self.gcs.update(now, self.loc.estimate() if self.loc is not None and self.origin is not None else None,
-                              self.output.last_hacc_m, self.output.health.healthy,
-                              "rejected" if gnss["rejecting"] else gnss["state"], self.stats.fixes,
-                              svc.answered if svc else 0, svc.triggers_off_map if svc else 0, self.fixes.last_weight)
-        t_ap = self.clockmap.now_autopilot()
-        for name, value in rep.values:
-            link.send(encoders.named_value_float(link.mav, int(t_ap * 1e3) if t_ap else 0, name, value))
-        if rep.change is not None:
-            severity, text = rep.change
-            log.warning("%s", text) if severity <= SEV_WARNING else log.info("%s", text)
-            self.events.write("mode", mode=self.gcs.mode.name, code=int(self.gcs.mode), text=text)
-            self._status(severity, text, key=None)
-
-    def _health_changed(self, text: str, healthy: bool) -> None:
-        log.info("%s", text) if healthy else log.warning("%s", text)
-        self.events.write("health", text=text, healthy=healthy)
-        self._status(SEV_INFO if healthy else SEV_WARNING, text, key=None)
-
-    def _status(self, severity: int, text: str, key: str | None) -> None:
-        """STATUSTEXT to the autopilot (and the log); `key` rate-limits by output.statustext_interval_s."""
-        now = self.clock()
-        if key is not None:
-            if now - self._last_status.get(key, -math.inf) < self.profile.output.statustext_interval_s:
-                return
-            self._last_status[key] = now
-        log.info("STATUSTEXT: %s", text)
-        if self.link is not None:
-            self.link.send(encoders.statustext(self.link.mav, severity, text))
-
-    def summary(self) -> dict[str, Any]:
-        """Counters for logs and tests; output_slots_skipped: output periods missed because the loop ran late
-        (a stalled machine; each one is a GPS_INPUT the autopilot did not get)."""
-        lat = np.array(self.stats.imu_to_estimate_s) * 1e3
-        return {"imu_samples": self.stats.imu_samples, "queries": self.stats.queries, "fixes": dict(self.stats.fixes),
-                "dropped": dict(self.stats.dropped), "rejected_inputs": dict(self.decoders.rejected),
-                "outputs": len(self.stats.output_times),
-                "output_slots_skipped": self.t_output.skipped if hasattr(self, "t_output") else 0,
-                "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
-                "sources": self.sources.summary(), "attitude_stale": self.stats.attitude_stale,
-                "link_outages": self.linkwatch.outages, "link_lost": self.linkwatch.lost,
-                "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
-                "mode": self.gcs.mode.name if hasattr(self, "gcs") else None,
-                "camera_motion": dict(self.motion.counts) if self.motion is not None else None,
-                "stuck_matchers": self.fixes.stuck,
-                "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
-                "clock_source": self.clockmap.source, "clock_speed": self.clockmap.speed(),
-                "healthy": self.output.health.healthy,
-                "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
-                "estimator": self._estimator_state()}
-
-    def _estimator_state(self) -> dict[str, Any] | None:
-        """The estimate's 1-sigma (m) and the mode's internal state (taco+: lock, speed error m/s, accelerometer
-        bias m/s^2, compass bias rad, fix-noise scale) for the periodic stats line; non-finite values as None."""
-        if self.loc is None:
-            return None
-        est = self.loc.estimate()
-        state = {"mode": self.profile.estimator.value, "sigma_h_m": est.sigma_h, **est.extra}
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in state.items()}
 
 
 def run_daemon(profile: Profile, options: DaemonOptions) -> int:

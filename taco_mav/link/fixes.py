@@ -45,6 +45,7 @@ from taco_mav.errors import ConfigError
 from taco_mav.link import encoders
 from taco_mav.link.decoders import SimPose
 from taco_mav.link.eventlog import EventLog
+from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
 from taco_mav.link.timesync import ClockMap
 from taco_mav.link.worker import FetchFn, MatchWorker, WorkResult
 
@@ -53,7 +54,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-SEV_WARNING, SEV_NOTICE, SEV_INFO = 4, 5, 6  # MAV_SEVERITY of the fix STATUSTEXTs (as taco_mav.link.daemon)
 STALE_LOOK_S = 60.0  # sources are asked for frames this far from the capture time, so stale ones are told apart
 MAX_STUCK = 2  # abandoned matcher threads still inside the matcher; beyond this no new worker is started
 

@@ -21,6 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from taco_mav.core.types import Estimate
+from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
 
 __all__ = ["CAMERA_FAULTS", "GCS_HEALTH_HZ", "GNSS_CODES", "GcsHealth", "GcsReport", "TacoMode"]
 
@@ -28,7 +29,6 @@ GCS_HEALTH_HZ = 1.0  # NAMED_VALUE_FLOAT rate, Hz of autopilot time
 CAMERA_LOST_S = 3.0  # s (companion) of camera faults without a frame reaching the matcher: camera lost
 CAMERA_FAULTS = frozenset({"no_frame", "stale_frame", "corrupt_frame", "bad_shape", "blank_frame", "frozen_frame"})
 GNSS_CODES = {"none": 0, "ok": 1, "lost": 2, "rejected": 3}  # never had a 3D fix / fused / lost / refused (spoofed?)
-SEV_WARNING, SEV_NOTICE, SEV_INFO = 4, 5, 6
 
 
 class TacoMode(enum.IntEnum):

@@ -29,14 +29,13 @@ import numpy as np
 from taco_mav.core.types import GnssFix, GnssOutcome
 from taco_mav.link.decoders import GnssReading
 from taco_mav.link.encoders import Origin
+from taco_mav.link.mavconst import GPS_TYPE_MAV, GPS_TYPE_NONE, SEV_NOTICE, SEV_WARNING
 
 log = logging.getLogger(__name__)
 
 __all__ = ["GnssEvent", "GnssTracker", "gnss_fix", "moved_from_origin", "sigma_h_of", "SEV_WARNING",
            "SEV_NOTICE"]
 
-GPS_TYPE_NONE, GPS_TYPE_MAV = 0, 14
-SEV_WARNING, SEV_NOTICE = 4, 5
 DEFAULT_SIGMA_V_MPS = 0.5  # speed 1-sigma when the receiver reports none
 FALLBACK_SIGMA_H_M = 10.0  # position 1-sigma with neither h_acc nor HDOP
 MAX_RANGE_M = 50_000.0  # a fix farther than this from the origin is not our vehicle's (counted, never used)

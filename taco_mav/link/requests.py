@@ -14,6 +14,8 @@ from typing import Any, Callable
 
 from pymavlink import mavutil
 
+from taco_mav.link.mavconst import GPS_TYPE_MAV
+
 log = logging.getLogger(__name__)
 m = mavutil.mavlink
 
@@ -144,7 +146,6 @@ class MessageRequest:
             self.sent += 1
 
 
-GPS_TYPE_MAV = 14
 # parameter name -> GPS instance (1 = GPS1); ArduPilot 4.6 renamed GPS_TYPE / GPS_TYPE2 to GPS1_TYPE / GPS2_TYPE
 GPS_TYPE_PARAMS = {"GPS1_TYPE": 1, "GPS2_TYPE": 2, "GPS_TYPE": 1, "GPS_TYPE2": 2}
 

@@ -49,7 +49,7 @@ def simulate(drive: Path, connect: str, out: Path, speed: float = 1.0, *, deny_a
     deny_after_s: drive seconds of real GNSS before NO_FIX (0: never a fix; None: only the start-up fix, first
     second, or never denied when spoofing). gps1_type / gps2_type, gnss_noise_m, seed, spoof_*, home,
     send_home: see `SimOptions`. Returns the results document. Ctrl-C stops playback early; what was played
-    is still scored and written.
+    is still scored and written, then KeyboardInterrupt propagates (the command exits 130).
     """
     if deny_after_s is None:
         deny_after_s = math.inf if spoof_after_s is not None else 1.0
@@ -59,14 +59,18 @@ def simulate(drive: Path, connect: str, out: Path, speed: float = 1.0, *, deny_a
                       home=home, send_home=send_home, wait_companion_s=wait_companion_s)
     sim = Simulator(drive, connect, speed, options=opts)
     sim.start()
+    interrupted = False
     try:
         while not sim.join(timeout=0.5):
             pass
     except KeyboardInterrupt:
+        interrupted = True
         log.warning("interrupted: scoring what was played")
         sim.stop()
         sim.join(timeout=5.0)
     doc = sim.results()
     path = write_results(doc, out)
     log.info("wrote %s", path)
+    if interrupted:
+        raise KeyboardInterrupt
     return doc

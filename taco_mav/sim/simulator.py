@@ -32,6 +32,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError, TacoError  # noqa: E402
+from taco_mav.link.mavconst import GPS_TYPE_MAV  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.clock import SimClock  # noqa: E402
 from taco_mav.sim.gps_mav import GpsInputMonitor  # noqa: E402
@@ -53,7 +54,6 @@ DEFAULT_INTERVALS: dict[int, float] = {
     M.MAVLINK_MSG_ID_SCALED_IMU: -1.0, M.MAVLINK_MSG_ID_HIGHRES_IMU: -1.0, M.MAVLINK_MSG_ID_GPS2_RAW: 0.2,
     M.MAVLINK_MSG_ID_HOME_POSITION: 1.0, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
 }
-GPS_TYPE_MAV = 14
 
 
 @dataclass(frozen=True)

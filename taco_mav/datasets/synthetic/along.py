@@ -24,7 +24,7 @@ from taco_mav.datasets.kitti import OXTS, load_drive
 from taco_mav.datasets.synthetic import kitti_writer as kw
 from taco_mav.datasets.synthetic.layout import layout_scene
 from taco_mav.datasets.synthetic.roads import Road, resample_polyline
-from taco_mav.datasets.synthetic.world import GENERATOR_VERSION, M_PER_PX, _extent, _paint_and_write
+from taco_mav.datasets.synthetic.world_base import GENERATOR_VERSION, M_PER_PX, paint_and_write, world_extent
 from taco_mav.errors import DataError
 
 log = logging.getLogger(__name__)
@@ -72,10 +72,10 @@ def build_along_world(out: Path, drive_dir: Path, seed: int = 0, progress: bool 
     centre_utm = (float(origin[0]), float(origin[1]))
     track = kd.truth.xy
     roads, junctions, styles = roads_along(track, r_roads)
-    x0, y0, x1, y1, w, h = _extent(track, centre_utm)
+    x0, y0, x1, y1, w, h = world_extent(track, centre_utm)
     scene = layout_scene(r_layout, (x0, y0, x1, y1), roads, junctions, styles)
     steps.update()
-    mosaic_name = _paint_and_write(scene, out, x0, y1, w, h, kd.utm_epsg, centre_utm, seed, r_paint, progress)
+    mosaic_name = paint_and_write(scene, out, x0, y1, w, h, kd.utm_epsg, centre_utm, seed, r_paint, progress)
     steps.update()
 
     date = kd.name.split("_drive_")[0]

@@ -63,18 +63,24 @@ class SyntheticDrive:
     meta: dict[str, Any]
     kitti: KittiDrive
     truth_utm: np.ndarray
-    _renderer: GroundRenderer | None = field(default=None, repr=False)
+    _renderer: Any = field(default=None, repr=False)
 
     def camera_pose(self, t: float) -> tuple[float, float, float]:
         """True camera pose at time t: (E, N) absolute UTM metres and heading on the UTM grid, ENU radians."""
         x, y, th = self.truth.pose_at(t)
         return float(self.origin_utm[0] + x), float(self.origin_utm[1] + y), th
 
-    def renderer(self) -> GroundRenderer:
-        """The ground renderer over this world's mosaic (built on first use: reads the GeoTIFF once)."""
+    def renderer(self) -> Any:
+        """The camera renderer (built on first use): a `GroundRenderer` over the mosaic for flat worlds, a
+        `world3d.WorldRenderer3D` (perspective, occlusion, the camera's own day) for 3d worlds."""
         if self._renderer is None:
             if self.camera is None or self.mosaic is None:
                 raise DataError(f"{self.world_dir}: world has no camera or no mosaic")
+            if self.meta.get("realism") == "3d":
+                from taco_mav.datasets.synthetic.world3d import WorldRenderer3D
+
+                self._renderer = WorldRenderer3D(self.world_dir, self.camera, self.meta)
+                return self._renderer
             with rasterio.open(self.mosaic) as src:
                 img = np.ascontiguousarray(src.read().transpose(1, 2, 0))
                 transform = src.transform
@@ -87,7 +93,10 @@ class SyntheticDrive:
         """Camera frame `index` rendered at the true pose, uint8 RGB (H, W, 3)."""
         if not 0 <= index < len(self.frame_times):
             raise DataError(f"{self.world_dir}: frame {index} out of range (world has {len(self.frame_times)} frames)")
-        return self.renderer().render(self.camera_pose(float(self.frame_times[index])))
+        t = float(self.frame_times[index])
+        if self.meta.get("realism") == "3d":
+            return self.renderer().render(self.camera_pose(t), t)  # t: where the moving cars are
+        return self.renderer().render(self.camera_pose(t))
 
 
 def load_world(world_dir: Path) -> SyntheticDrive:

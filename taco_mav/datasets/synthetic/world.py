@@ -30,11 +30,10 @@ from tqdm import tqdm
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.synthetic import kitti_writer as kw
 from taco_mav.datasets.synthetic.imu_model import ImuNoiseModel, apply_imu_noise, noise_preset
-from taco_mav.datasets.synthetic.layout import Scene, layout_scene
-from taco_mav.datasets.synthetic.mosaic import Canvas, write_geotiff
-from taco_mav.datasets.synthetic.paint import paint_scene
+from taco_mav.datasets.synthetic.layout import layout_scene
 from taco_mav.datasets.synthetic.roads import Road, grid_network, plan_route, route_polyline
 from taco_mav.datasets.synthetic.trajectory import Kinematics, drive_kinematics
+from taco_mav.datasets.synthetic.world_base import GENERATOR_VERSION, M_PER_PX, paint_and_write, world_extent
 from taco_mav.errors import ConfigError
 from taco_mav.geo import UtmProjector, utm_epsg_for
 
@@ -42,11 +41,8 @@ log = logging.getLogger(__name__)
 
 __all__ = ["build_world", "GENERATOR_VERSION", "DEFAULT_CENTRE", "G"]
 
-GENERATOR_VERSION = "taco_mav.synthetic/1"
 DEFAULT_CENTRE = (49.01, 8.40)  # near Karlsruhe (UTM zone 32N), KITTI's city
 G = 9.80665
-M_PER_PX = 0.2
-MARGIN_M = 150.0
 IMU_RATE_HZ = 100.0
 FRAME_RATE_HZ = 10.0
 DATE = "2011_01_01"
@@ -68,17 +64,6 @@ def _stubs(net_nodes: np.ndarray, net_edges: np.ndarray, roads: list[Road]) -> l
         u = np.arange(0.0, 251.0)[:, None]
         out.append(Road(xy=net_nodes[k] + u * d, width_m=7.0))
     return out
-
-
-def _extent(xy: np.ndarray, centre_utm: tuple[float, float]) -> tuple[float, float, float, float, int, int]:
-    """Local extent (x0, y0, x1, y1) of the route bbox plus the margin, snapped to whole UTM metres, and
-    its size in pixels (width, height)."""
-    e0 = math.floor(centre_utm[0] + xy[:, 0].min() - MARGIN_M)
-    e1 = math.ceil(centre_utm[0] + xy[:, 0].max() + MARGIN_M)
-    n0 = math.floor(centre_utm[1] + xy[:, 1].min() - MARGIN_M)
-    n1 = math.ceil(centre_utm[1] + xy[:, 1].max() + MARGIN_M)
-    w, h = int(round((e1 - e0) / M_PER_PX)), int(round((n1 - n0) / M_PER_PX))
-    return e0 - centre_utm[0], n0 - centre_utm[1], e1 - centre_utm[0], n1 - centre_utm[1], w, h
 
 
 def _oxts_rows(kin: Kinematics, proj: UtmProjector, centre_utm: tuple[float, float], model: ImuNoiseModel,
@@ -112,7 +97,8 @@ def _oxts_rows(kin: Kinematics, proj: UtmProjector, centre_utm: tuple[float, flo
 
 
 def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[float, float] | None = None,
-                along_drive: Path | None = None, imu_preset: str = "automotive", progress: bool = True) -> Path:
+                along_drive: Path | None = None, imu_preset: str = "automotive", progress: bool = True,
+                realism: str = "flat") -> Path:
     """Generate a world (mosaic + drive in KITTI raw layout) into `out`; returns `out`.
 
     seed: every random choice derives from it (same seed, same bytes). length_km: approximate route length
@@ -120,8 +106,14 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
     centre: (lat, lon) degrees of the world centre (default 49.01 N 8.40 E). along_drive: a KITTI raw drive
     folder; the roads then follow its GPS track and its real OXTS is written (see `along.py`).
     imu_preset: automotive | rt3003 | none (ignored with along_drive: the real IMU is kept).
+    realism: "flat" (the mosaic is the ground) or "3d" (buildings, trees, cars, poles; the mosaic is an
+    aerial render of another day with a georeferencing error: see `world3d.py`).
     """
     model = noise_preset(imu_preset)
+    if realism not in ("flat", "3d"):
+        raise ConfigError(f"--realism: {realism!r} is not one of flat, 3d")
+    if realism == "3d" and along_drive is not None:
+        raise ConfigError("--realism 3d: not available with --along-drive yet")
     if along_drive is not None:
         from taco_mav.datasets.synthetic.along import build_along_world
 
@@ -147,11 +139,18 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
     log.info("route: %d junctions, %.0f m, %.0f s", len(route), kin.s[-1], kin.t[-1])
     steps.update()
 
-    x0, y0, x1, y1, w, h = _extent(kin.xy, centre_utm)
+    x0, y0, x1, y1, w, h = world_extent(kin.xy, centre_utm)
     roads = net.roads + _stubs(net.nodes, net.edges, net.roads)
     scene = layout_scene(r_layout, (x0, y0, x1, y1), roads, net.nodes, net.junction_style)
     steps.update()
-    mosaic_name = _paint_and_write(scene, out, x0, y1, w, h, epsg, centre_utm, seed, r_paint, progress)
+    extra: dict = {}
+    if realism == "3d":
+        from taco_mav.datasets.synthetic.world3d import build_world3d
+
+        extra = build_world3d(out, scene, (x0, y0, x1, y1), epsg, centre_utm, seed, kin.xy, kin.t, progress)
+        mosaic_name = extra["mosaic"]
+    else:
+        mosaic_name = paint_and_write(scene, out, x0, y1, w, h, epsg, centre_utm, seed, r_paint, progress)
     steps.update()
 
     values, truth = _oxts_rows(kin, proj, centre_utm, model, seed)
@@ -173,18 +172,10 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
         "drive": drive_rel.as_posix(), "drive_name": drive_name.removesuffix("_sync"), "truth": "truth.npz",
         "frames": (drive_rel / "frames" / "timestamps.txt").as_posix(), "imu_rate_hz": IMU_RATE_HZ,
         "frame_rate_hz": FRAME_RATE_HZ, "imu_noise": model.to_dict(), "camera": asdict(cam),
-        "length_m": float(kin.s[-1]), "duration_s": float(kin.t[-1]), "along_drive": None,
+        "length_m": float(kin.s[-1]), "duration_s": float(kin.t[-1]), "along_drive": None, "realism": realism,
     }
+    meta.update(extra)
     (out / "world.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     steps.update()
     steps.close()
     return out
-
-
-def _paint_and_write(scene: Scene, out: Path, x0: float, y1: float, w: int, h: int, epsg: int,
-                     centre_utm: tuple[float, float], seed: int, rng: np.random.Generator, progress: bool) -> str:
-    """Paint the scene and write `out/mosaic.tif`; returns the file name."""
-    canvas = Canvas.blank(x0, y1, w, h, M_PER_PX)
-    paint_scene(canvas, scene, rng)
-    write_geotiff(canvas, out / "mosaic.tif", epsg, centre_utm, seed, progress=progress)
-    return "mosaic.tif"

@@ -1,4 +1,6 @@
-"""Fuzz the daemon over real UDP: a seeded valid autopilot stream mixed with mutated and random MAVLink frames
+"""Test tooling, not product code (tests/test_fuzz.py, tests/test_link_imu_source.py, tools/fuzz_mavlink.py).
+
+Fuzz the daemon over real UDP: a seeded valid autopilot stream mixed with mutated and random MAVLink frames
 (fuzz_frames.py), everything the daemon sends back parsed and every float field checked.
 
 One episode per IMU message kind: a Daemon (in this process, its own thread, `udpin` on 127.0.0.1) is started,
@@ -24,7 +26,7 @@ from typing import Any, Callable
 
 from taco_mav.config import Profile, profile_from_dict
 from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
+from fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,6 @@
-"""Fuzz frames for the daemon: a seeded valid autopilot stream and seeded mutated / random MAVLink frames.
+"""Test tooling, not product code (used by fuzz_harness.py and the tests).
+
+Fuzz frames for the daemon: a seeded valid autopilot stream and seeded mutated / random MAVLink frames.
 
 `AutopilotStream` is a level ArduPilot rover driving a straight line (heading `yaw_deg` true, `speed` m/s) seen
 from its MAVLink side: per 10 ms step of autopilot time it emits the IMU message of the episode's kind (100 Hz),

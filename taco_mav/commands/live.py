@@ -1,0 +1,165 @@
+"""`taco-mav` commands that talk MAVLink: run (the daemon), sim (the autopilot simulator), demo (both on
+loopback). Each checks its arguments and inputs (`taco_mav.checks`) before opening a socket or a thread."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from taco_mav import checks
+from taco_mav.cli_support import EXIT_INTERRUPTED
+from taco_mav.commands.offline import show_progress
+from taco_mav.errors import UsageError
+
+log = logging.getLogger("taco_mav")
+
+
+def check_camera_and_map(args: argparse.Namespace, matcher: str) -> None:
+    """--camera and --map: what CVGL fixes need, unless --dead-reckoning says to run without them."""
+    if args.dead_reckoning:
+        if args.camera or args.map:
+            raise UsageError("--dead-reckoning: runs without camera and map; drop --camera/--map or this flag")
+        return
+    if args.camera is None and matcher != "emulator":
+        raise UsageError(f"--camera: required (matcher {matcher} matches camera frames against the map); "
+                         "--dead-reckoning runs without fixes")
+    world = args.camera.startswith("world:") if args.camera else False
+    if args.camera and world:
+        checks.world(args.camera[len("world:"):], f"--camera {args.camera}")  # its mosaic is the default map
+    elif args.camera and args.camera.startswith("folder:"):
+        checks.input_dir(args.camera[len("folder:"):].partition("@")[0], "--camera")
+    if args.map:
+        checks.geotiff(args.map, "--map")
+    elif not world and matcher != "emulator":
+        raise UsageError(f"--map: required with --camera {args.camera} (a satellite GeoTIFF in UTM; only "
+                         "--camera world:DIR brings its own)")
+
+
+def check_connect(text: str, baud: int) -> None:
+    """--connect: a network form with HOST:PORT, or a serial device path (an absent device is a runtime error,
+    found when the daemon opens it); a word followed by ':' that is no known scheme is a typo."""
+    from taco_mav.link.connection import _NETWORK, parse_connection
+
+    device, _ = parse_connection(text, baud)
+    scheme = device.split(":", 1)[0] + ":" if ":" in device else ""
+    if scheme and not text.startswith(_NETWORK) and not device.startswith(("/", "COM")):
+        raise UsageError(f"--connect {text}: unknown link type {scheme!r} (known: {', '.join(_NETWORK)} or a "
+                         "serial device such as /dev/ttyAMA0:921600)")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from taco_mav.config import Estimator, load_profile
+    from taco_mav.link.appendlog import session_dir
+    from taco_mav.link.daemon import Daemon, DaemonOptions
+    from taco_mav.link.signing import key_file
+
+    origin = None
+    if args.origin:
+        vals = checks.coordinates(args.origin, "--origin", ("LAT", "LON", "ALT"), optional_last=True)
+        origin = (vals[0], vals[1], vals[2] if len(vals) > 2 else 0.0)
+    checks.number(args.matcher_latency, "--matcher-latency", 0.0, 60.0)
+    profile = load_profile(args.profile)
+    check_connect(args.connect, profile.link.baud)
+    estimator = Estimator(args.estimator) if args.estimator else profile.estimator
+    signing = key_file(args.signing_key) if args.signing_key else None
+    check_camera_and_map(args, profile.matcher)
+    log_dir = None
+    if args.log_dir:
+        log_dir = session_dir(checks.output_dir(args.log_dir, "--log-dir"))  # each session its own folder
+        log.info("logging this session to %s", log_dir)
+    opts = DaemonOptions(connect=args.connect, camera=args.camera, map_path=Path(args.map) if args.map else None,
+                         log_dir=log_dir, origin=origin, estimator=estimator,
+                         matcher_latency_s=args.matcher_latency, signing_key=signing)
+    daemon = Daemon(profile, opts)
+    received: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        received.append(signum)
+        daemon.stop()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        rc = daemon.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    # SIGTERM (systemd's stop) is a clean stop, 0; Ctrl-C is the same clean stop, reported as 130
+    return EXIT_INTERRUPTED if signal.SIGINT in received else rc
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from taco_mav.sim import simulate
+
+    home = checks.coordinates(args.home, "--home", ("LAT", "LON", "ALT")) if args.home else None
+    if args.spoof_drift is not None and args.spoof_after is None:
+        raise UsageError("--spoof-drift needs --spoof-after")
+    checks.number(args.speed, "--speed", 0.0, 1000.0, low_open=True)
+    checks.number(args.duration, "--duration", 0.0, low_open=True)
+    checks.number(args.deny_after, "--deny-after", 0.0)
+    checks.number(args.gnss_noise, "--gnss-noise", 0.0, 1000.0)
+    checks.number(args.spoof_after, "--spoof-after", 0.0)
+    checks.number(args.spoof_drift, "--spoof-drift", 0.0, 1000.0)
+    checks.number(args.wait, "--wait", 0.0, low_open=True)
+    drive = checks.input_dir(args.drive, "--drive")
+    out = checks.fresh_folder(checks.output_dir(args.out), "results.json", args.force)
+    doc = simulate(drive, args.connect, out, args.speed, deny_after_s=args.deny_after,
+                   lockstep=args.lockstep, duration_s=args.duration, gps1_type=args.gps1_type,
+                   gps2_type=args.gps2_type, gnss_noise_m=args.gnss_noise, seed=args.seed,
+                   spoof_after_s=args.spoof_after, spoof_drift_mps=args.spoof_drift or 0.0,
+                   spoof_jump_m=args.spoof_jump, home=tuple(home) if home else None, send_home=not args.no_home,
+                   wait_companion_s=args.wait)
+    for name, seq in doc["sequences"].items():
+        print(sim_table(name, seq))
+    print(f"wrote {out / 'results.json'}")
+    return 0
+
+
+def fmt(value: object, spec: str) -> str:
+    return "n/a" if value is None else format(value, spec)
+
+
+def sim_table(name: str, seq: dict) -> str:
+    """The simulator's figures for one drive as an aligned text table."""
+    rows = [
+        ("drive", name),
+        ("ATE (first-pose aligned)", f"{fmt(seq.get('ate_m'), '.2f')} m"),
+        ("ATE (UTM, unaligned)", f"{fmt(seq.get('ate_unaligned_m'), '.2f')} m"),
+        ("length", f"{fmt(seq.get('length_km'), '.3f')} km"),
+        ("ATE per km", f"{fmt(seq.get('ate_m_per_km'), '.2f')} m/km"),
+        *([("ATE denied/spoofed / max", f"{fmt(seq.get('ate_denied_m'), '.2f')} / "
+                                        f"{fmt(seq.get('max_error_denied_m'), '.2f')} m "
+                                        f"(from {fmt(seq.get('denied_from_s'), '.0f')} s)")]
+          if "ate_denied_m" in seq else []),
+        ("GPS_INPUT received", f"{seq.get('gps_input_count', 0)} (fix types {seq.get('fix_type_counts', {})})"),
+        ("GPS_INPUT rate", f"{fmt(seq.get('gps_input_rate_hz'), '.2f')} Hz"),
+        ("interval p50 / p99 / max", f"{fmt(seq.get('gps_input_interval_p50_ms'), '.0f')} / "
+                                     f"{fmt(seq.get('gps_input_interval_p99_ms'), '.0f')} / "
+                                     f"{fmt(seq.get('gps_input_interval_max_ms'), '.0f')} ms"),
+        ("two gaps > 245 ms in a row", str(seq.get("consecutive_gaps_over_245ms"))),
+        ("EKF3 gates (10 s)", f"{'ok' if seq.get('ekf_gates_ok') else 'NOT met'} "
+                              f"(pass {fmt(seq.get('ekf_gate_pass_fraction'), '.0%')}, HDOP p50 "
+                              f"{fmt(seq.get('hdop_p50'), '.2f')})"),
+    ]
+    return "\n".join(f"{k:28s} {v}" for k, v in rows)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from taco_mav.demo import run_demo
+
+    res = run_demo(Path(args.out), progress=show_progress(args), speed=args.speed, estimator=args.estimator,
+                   force=args.force)
+    print(f"{'estimator / matcher':28s} {res.estimator} / {res.matcher}")
+    print(sim_table(res.drive, res.results))
+    fixes = res.daemon.get("fixes", {})
+    print(f"{'CVGL fixes accepted':28s} {fixes.get('accepted', 0)} of {sum(fixes.values())} answered")
+    print(f"{'wall time':28s} {res.wall_s:.0f} s{' (interrupted)' if res.interrupted else ''}")
+    print(f"results:    {res.results_path}")
+    print(f"trajectory: {res.plot_path}")
+    if res.interrupted:
+        print("taco-mav demo: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0

@@ -1,0 +1,155 @@
+"""`taco-mav` commands that work on files: bench, world, eval, drift, calibrate. Each checks its arguments and
+inputs (`taco_mav.checks`) before the first expensive step, then calls one importable function."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+from taco_mav import checks
+from taco_mav.errors import UsageError
+
+log = logging.getLogger("taco_mav")
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    return not args.quiet
+
+
+def sequences(text: str | None) -> tuple[str, ...]:
+    return tuple(s.strip() for s in text.split(",") if s.strip()) if text else ()
+
+
+def check_sources(args: argparse.Namespace) -> None:
+    """--kitti-root/--sequences/--drive (eval and drift): present, known, readable."""
+    from taco_mav.datasets.kitti import ODOMETRY_SEQUENCES
+
+    if args.kitti_root:
+        checks.input_dir(args.kitti_root, "--kitti-root")
+    seqs = sequences(args.sequences)
+    if args.sequences is not None:
+        checks.names([s.zfill(2) for s in seqs] or [args.sequences], "--sequences", sorted(ODOMETRY_SEQUENCES))
+        if not args.kitti_root:
+            raise UsageError("--sequences needs --kitti-root DIR (the KITTI raw root)")
+    for d in args.drive:
+        checks.input_dir(d, "--drive")
+        folder = checks.world_of(d)
+        if folder is not None:  # a synthetic world: its mosaic must be complete before any work
+            checks.world(folder, f"--drive {d}")
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from taco_mav.bench import SECTION_NAMES, run_bench
+
+    only = list(checks.names(args.only, "--only", SECTION_NAMES)) if args.only is not None else None
+    out = checks.output_file(args.out)
+    results = run_bench(out, only=only, progress=show_progress(args))
+    for key in sorted(results):
+        print(f"{key:45s} {results[key]}")
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_world(args: argparse.Namespace) -> int:
+    centre = checks.coordinates(args.centre, "--centre") if args.centre else None
+    checks.number(args.length_km, "--length-km", 0.05, 50.0)
+    along = checks.input_dir(args.along_drive, "--along-drive") if args.along_drive else None
+    out = checks.fresh_folder(checks.output_dir(args.out), "world.json", args.force)
+    from taco_mav.datasets.synthetic import build_world
+
+    path = build_world(out, seed=args.seed, length_km=args.length_km,
+                       centre=(centre[0], centre[1]) if centre else None, along_drive=along,
+                       imu_preset=args.imu, progress=show_progress(args), realism=args.realism)
+    print(f"wrote world {path}")
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from taco_mav.evaluation.evaluate import ABLATIONS, EvalRequest, evaluate, resolve_profile
+
+    ablations: tuple[str, ...] = ()
+    if args.ablations:
+        ablations = ("all",) if args.ablations == "all" else checks.names(args.ablations, "--ablations", ABLATIONS)
+    elif args.ablation:
+        ablations = ("full", *checks.names(args.ablation, "--ablation", ABLATIONS))
+    checks.number(args.matcher_latency, "--matcher-latency", 0.0, 60.0)
+    req = EvalRequest(
+        out=Path(args.out), profile=args.profile, kitti_root=Path(args.kitti_root) if args.kitti_root else None,
+        sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive), matcher=args.matcher,
+        ablations=ablations, seed=args.seed, latency_s=args.matcher_latency, apply_on_arrival=args.apply_on_arrival,
+        estimator=args.estimator, cross_area=args.cross_area, plots=not args.no_plots, progress=show_progress(args))
+    profile = resolve_profile(req)  # the profile's own errors first: they name the file and key
+    check_sources(args)
+    if not req.drives and not req.sequences:
+        raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
+    if req.drives and req.sequences:
+        raise UsageError("give either --sequences (with --kitti-root) or --drive, not both")
+    checks.fresh_folder(checks.output_dir(args.out), "results.json", args.force)
+    log.info("evaluating with estimator %s, matcher %s into %s", profile.estimator.value, profile.matcher, args.out)
+    results = evaluate(req)
+    print((Path(args.out) / "table.md").read_text())
+    s = results["summary"]
+    print(f"median ATE {s['median_ate_m']} m (IMU only {s['median_ate_imu_only_m']} m) over {s['sequences_run']} "
+          f"sequence(s), estimator {profile.estimator.value}, matcher {profile.matcher}; results in "
+          f"{Path(args.out) / 'results.json'}")
+    return 0
+
+
+def cmd_drift(args: argparse.Namespace) -> int:
+    import json
+
+    from taco_mav.config import load_profile
+    from taco_mav.datasets.tlog import load_tlog
+    from taco_mav.evaluation.drift import measure_drift, report_text
+    from taco_mav.evaluation.evaluate import EvalRequest, load_drives
+
+    profile = load_profile(args.profile)
+    checks.number(args.min_speed, "--min-speed", 0.0, 100.0)
+    tlogs = [checks.input_file(f, "--tlog") for f in args.tlog]
+    check_sources(args)
+    out = checks.output_file(args.out) if args.out else None
+    name = Path(args.profile).stem
+    reports: list[Any] = []
+
+    def write() -> None:
+        if out is not None:
+            doc = {"profile": args.profile, "drives": [r.to_dict() for r in reports]}
+            out.write_text(json.dumps(doc, indent=2) + "\n")
+            print(f"wrote {out}")
+
+    try:
+        for f in tlogs:
+            reports.append(measure_drift(load_tlog(f, imu_message=args.imu_message), min_speed_mps=args.min_speed))
+        if args.sequences or args.drive or not tlogs:
+            req = EvalRequest(out=Path("."), kitti_root=Path(args.kitti_root) if args.kitti_root else None,
+                              sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive))
+            for drive in load_drives(req):
+                reports.append(measure_drift(drive, min_speed_mps=args.min_speed))
+    except BaseException:
+        if reports:  # work done is never lost to a later drive's error
+            print("\n\n".join(report_text(r, profile.plus, name) for r in reports))
+            write()
+        raise
+    print("\n\n".join(report_text(r, profile.plus, name) for r in reports))
+    write()
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from taco_mav.calibrate import calibrate, parse_board
+
+    board = parse_board(args.board)
+    checks.number(args.square, "--square", 0.0, 10.0, low_open=True)
+    images = checks.input_dir(args.images, "--images")
+    out = checks.output_file(args.out)
+    res = calibrate(images, board, args.square, out, fisheye=args.fisheye)
+    K, D = res.lens.K, res.lens.D
+    print(f"board found in {len(res.used)} of {res.images} images")
+    print(f"fx {K[0, 0]:.2f}  fy {K[1, 1]:.2f}  cx {K[0, 2]:.2f}  cy {K[1, 2]:.2f} px "
+          f"({res.lens.width}x{res.lens.height})")
+    print(f"{res.lens.model.value} distortion {' '.join(f'{d:+.5f}' for d in D)}")
+    print(f"RMS reprojection error {res.rms_px:.3f} px")
+    print(f"wrote {res.out}")
+    return 0

@@ -1,0 +1,38 @@
+"""Vehicle profiles: frozen dataclasses with the paper's values as defaults, loaded from YAML.
+
+Every TACO parameter is named here, defaulted to the value in `../shared/paper/TACO.tex`, and cited by
+section ("Sec. III-B" = Methodology, IMU Preintegration and Error Model; III-D = Triggering and Multi-Crop
+Search; III-E = Yaw-Residual Gate; III-F = UKF Fusion; III-G = Factor Graph and Loop Closure; IV = Results).
+Values the paper does not give are marked "not in the paper" with the reason for our choice.
+
+A profile YAML mirrors the nesting of `Profile`; any key it leaves out keeps its default. Unknown keys,
+wrong types and out-of-range values raise `ConfigError` naming the file and the dotted key.
+
+One module per concern, every public name re-exported here (`from taco_mav.config import X`):
+
+- `fields`: `Estimator` and the `bounded` range metadata every section uses;
+- `paper`: the paper's sections (imu, error_model, trigger, gate, ukf, smoother) and latency;
+- `plus`: taco+ and the GNSS guard (issues 7, 14, 19);
+- `sensors`: camera, map and the matchers (classical, emulator, fg2);
+- `link`: the MAVLink link and the daemon's output;
+- `profile`: `Profile`, `replace_in`, `profile_to_dict`, `localiser_params`;
+- `loading`: YAML -> `Profile` with validation, shipped profiles by name.
+"""
+
+from __future__ import annotations
+
+from taco_mav.config.fields import Estimator, bounded
+from taco_mav.config.link import LinkConfig, OutputConfig
+from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, profile_from_dict,
+                                     resolve_profile_path, shipped_profiles)
+from taco_mav.config.paper import (ErrorModelConfig, GateConfig, ImuConfig, LatencyConfig, SmootherConfig,
+                                   TriggerConfig, UkfConfig)
+from taco_mav.config.plus import GnssConfig, PlusConfig
+from taco_mav.config.profile import MATCHERS, Profile, localiser_params, profile_to_dict, replace_in
+from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
+
+__all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "ClassicalMatcherConfig",
+           "EmulatorConfig", "ErrorModelConfig", "Estimator", "Fg2Config", "GateConfig", "GnssConfig", "ImuConfig",
+           "LatencyConfig", "LinkConfig", "MapConfig", "OutputConfig", "PlusConfig", "Profile", "SmootherConfig",
+           "TriggerConfig", "UkfConfig", "bounded", "load_profile", "localiser_params", "profile_from_dict",
+           "profile_to_dict", "replace_in", "resolve_profile_path", "shipped_profiles"]

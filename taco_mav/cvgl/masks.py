@@ -1,0 +1,140 @@
+"""Masks for what inverse perspective mapping cannot represent, found in the camera image.
+
+IPM assumes every pixel below the horizon shows flat ground. It is wrong for
+- the sky and anything at or above the horizon: `BevProjector` already drops rays that do not hit the ground
+  within `max_range_m` (its `mask`);
+- the ego vehicle: a bonnet or mount in the bottom rows of the frame (`ego_rows`, from the profile: the camera's
+  mounting is known, not guessed per frame);
+- vertical structure: poles, trunks, parked and moving cars, facades. Their pixels are mapped onto the ground
+  behind their foot and smeared radially; a satellite sees their roofs or nothing there.
+
+Vertical structure is found from one image cue: long, straight, image-vertical edges. A vertical world edge
+projects to an image-vertical line (pitch within a few degrees, no roll), while a straight ground line at
+lateral offset y projects to a line through the vanishing point with slope du/dv = -y / h (h the mount
+height): it is within `max_tilt_deg` of vertical only in a narrow cone below the vanishing point (|y| < 0.3 m
+for 10 deg and h = 1.65 m), which is excluded. Each column that holds such an edge is masked from the edge's
+lowest pixel (the object's foot) up (a stixel: everything above an object's foot in its column is object or
+sky, never ground nearer than the foot); the columns between two such columns whose feet are on nearly the same row
+are masked down to the higher foot, as one object's face (two poles at the same distance either side of the
+road also mask the ground beyond both).
+A face with no vertical edge within `fill_frac` of the image width is not found; nor is an object in the excluded cone.
+Moving objects are masked only as vertical structure: a single frame cannot tell parked from moving.
+
+Frames and units: camera pixels (u, v) = (column, row), OpenCV convention; images uint8 or float (H, W[, 3]).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+
+__all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
+
+
+@dataclass(frozen=True)
+class MaskOptions:
+    """vertical: find and mask vertical structure; ego_rows: bottom image rows hidden by the ego vehicle;
+    max_tilt_deg: how far from image-vertical an edge may lean; min_len_frac: shortest edge kept, as a share of
+    the image height; min_contrast: least gradient (grey levels per pixel) of an edge; an edge continues down through
+    edges of a third of that; fill_frac, foot_tol_frac: the columns between two object
+    columns at most fill_frac of the image width apart whose feet are within foot_tol_frac of the image height
+    (one object's edges) are masked down to the higher foot (its face); dilate_px: final growth; min_view_fraction: a
+    trigger whose masks leave less than this share of the unmasked template gives no answer (w at its floor)."""
+
+    vertical: bool = True
+    ego_rows: int = 0
+    max_tilt_deg: float = 10.0
+    min_len_frac: float = 0.05
+    min_contrast: float = 6.0
+    fill_frac: float = 0.35
+    foot_tol_frac: float = 0.04
+    dilate_px: int = 3
+    min_view_fraction: float = 0.25
+
+
+def horizon_row(camera: GroundCamera) -> float:
+    """Image row of the horizon (ground at infinity straight ahead; pitch down positive), unclipped."""
+    return float(camera.K[1, 2] - camera.K[1, 1] * math.tan(camera.pitch_rad))
+
+
+def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions = MaskOptions()) -> np.ndarray:
+    """bool (H, W): pixels showing vertical structure (module docstring), True = not ground."""
+    gx, gy = _colour_gradient(image)
+    H, W = gx.shape
+    tilt = math.tan(math.radians(opts.max_tilt_deg))
+    vertical = np.abs(gy) <= tilt * np.abs(gx)
+    # the cone below the vanishing point where straight ground lines are near-vertical too
+    vh, cx = horizon_row(camera), float(camera.K[0, 2])
+    u = np.arange(W, dtype=np.float32)[None, :]
+    v = np.arange(H, dtype=np.float32)[:, None]
+    cone = (v > vh) & (np.abs(u - cx) <= tilt * (v - vh) + 2.0)
+    L = max(5, int(round(opts.min_len_frac * H)))
+    line = np.ones((L, 1), np.uint8)
+    strong = cv2.morphologyEx((vertical & ~cone & (np.abs(gx) >= opts.min_contrast)).astype(np.uint8),
+                              cv2.MORPH_OPEN, line)
+    # hysteresis: weaker vertical edges continuing a strong one (an object's edge against ground is often
+    # fainter than against the sky) extend it down to the object's foot
+    weak = cv2.morphologyEx((vertical & ~cone & (np.abs(gx) >= opts.min_contrast / 3.0)).astype(np.uint8),
+                            cv2.MORPH_OPEN, line) | strong
+    n, labels = cv2.connectedComponents(weak, connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[np.unique(labels[strong > 0])] = True
+    keep[0] = False
+    runs = keep[labels]
+    has = runs.any(axis=0)
+    out = np.zeros((H, W), np.uint8)
+    if has.any():
+        foot = np.where(has, H - 1 - np.argmax(runs[::-1], axis=0), -1)  # lowest edge pixel per column
+        foot = _fill_between(foot, max(2, int(round(opts.fill_frac * W))), max(2.0, opts.foot_tol_frac * H))
+        out = (np.arange(H)[:, None] <= foot[None, :]).astype(np.uint8)
+        if opts.dilate_px > 0:
+            d = 2 * opts.dilate_px + 1
+            out = cv2.dilate(out, np.ones((d, d), np.uint8))
+    return out.astype(bool)
+
+
+def _colour_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image gradient (gx, gy), grey levels per pixel, after a Gaussian blur (sigma 1 px); for colour images
+    that of the channel with the strongest gradient at each pixel (a magenta box on grey asphalt of the same
+    brightness still has an edge)."""
+    img = cv2.GaussianBlur(image.astype(np.float32), (5, 5), 1.0)
+    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+    if img.ndim == 2:
+        return gx, gy
+    k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
+    return np.take_along_axis(gx, k, axis=2)[:, :, 0], np.take_along_axis(gy, k, axis=2)[:, :, 0]
+
+
+def _fill_between(foot: np.ndarray, max_gap: int, tol: float) -> np.ndarray:
+    """Foot rows per column (-1: no object) with faces filled. Object columns form groups (runs with gaps of at
+    most 2 columns), each with its lowest foot; the columns between two groups at most `max_gap` apart whose
+    feet differ by at most `tol` rows (one object's edges) get the higher of the two feet."""
+    foot = foot.copy()
+    cols = np.flatnonzero(foot >= 0)
+    if cols.size < 2:
+        return foot
+    breaks = np.flatnonzero(np.diff(cols) > 3)
+    starts = np.r_[cols[0], cols[breaks + 1]]
+    ends = np.r_[cols[breaks], cols[-1]]
+    feet = [int(foot[a:b + 1].max()) for a, b in zip(starts, ends)]
+    for k in range(len(starts) - 1):
+        a, b = ends[k], starts[k + 1]
+        if b - a <= max_gap + 1 and abs(feet[k] - feet[k + 1]) <= tol:
+            gap = foot[a + 1:b]
+            np.maximum(gap, min(feet[k], feet[k + 1]), out=gap)
+    return foot
+
+
+def image_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions = MaskOptions()) -> np.ndarray | None:
+    """bool (H, W) of the pixels IPM must not use (vertical structure, ego vehicle), or None when none are."""
+    m = vertical_structure_mask(image, camera, opts) if opts.vertical else None
+    if opts.ego_rows > 0:
+        m = np.zeros(image.shape[:2], bool) if m is None else m
+        m[-int(opts.ego_rows):] = True
+    return m if m is not None and m.any() else None
