@@ -108,13 +108,13 @@ def _prepare(out: Path, speed: float, estimator: str, force: bool) -> tuple[Path
 def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None,
              estimator: str = "paper", force: bool = False) -> DemoResult:
     """Run the demo into `out` (see the module docstring); returns what it measured and wrote."""
+    out = Path(out)
+    run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
     from taco_mav.config import Estimator
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
 
-    out = Path(out)
-    run_dir, profile = _prepare(out, speed, estimator, force)
     world = demo_world(out, progress)
     start = time.monotonic()
     port = _free_port()

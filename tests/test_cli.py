@@ -166,6 +166,25 @@ def test_demo_run_folders_are_named_by_what_made_them(tmp_path: Path) -> None:
     assert (tmp_path / "taco+-classical").is_dir()
 
 
+def test_demo_world_is_made_again_when_cut_short(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A demo world whose mosaic is truncated (Ctrl-C or a full disk while it was written) is generated again;
+    a complete one is reused."""
+    import taco_mav.datasets.synthetic as synthetic
+    from taco_mav.demo import DEMO_SEED, demo_world
+    from tests.test_cli_errors import write_geotiff
+
+    built: list[Path] = []
+    monkeypatch.setattr(synthetic, "build_world", lambda out, **kw: built.append(Path(out)) or Path(out))
+    world = tmp_path / "world"
+    world.mkdir()
+    (world / "world.json").write_text(json.dumps({"seed": DEMO_SEED, "mosaic": "mosaic.tif"}))
+    data = write_geotiff(tmp_path / "full.tif").read_bytes()
+    (world / "mosaic.tif").write_bytes(data[: len(data) // 2])
+    assert demo_world(tmp_path, progress=False) == world and built == [world]
+    (world / "mosaic.tif").write_bytes(data)
+    assert demo_world(tmp_path, progress=False) == world and built == [world]  # reused: not built again
+
+
 def test_demo_checks_speed_before_any_work(tmp_path: Path) -> None:
     from taco_mav.demo import run_demo
 
@@ -259,21 +278,43 @@ def test_bench_keeps_what_it_measured_before_a_failing_section(tmp_path: Path,
     assert bench.run_bench(out, only=["gamma"], progress=False) == {"gamma_ms": 2.0}
 
 
-def test_drift_keeps_the_drives_measured_before_a_bad_one(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def _drift_tlog(path: Path) -> Path:
     from taco_mav.reliability.soak import circle_drive
     from tests.sim_helpers import write_tlog
 
     d = circle_drive(90.0, rate_hz=10.0, radius_m=150.0, speed_mps=8.0)
     d.accel_frd[:, 0] += np.random.default_rng(3).standard_normal(len(d)) * 0.05 / math.sqrt(0.1)
-    good = write_tlog(tmp_path / "rover.tlog", d)
+    return write_tlog(path, d)
+
+
+def test_drift_reads_every_input_before_measuring(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bad second tlog is found before the first is measured (nothing written); a failure while measuring
+    the second drive keeps the first one's figures in --out."""
+    import taco_mav.evaluation.drift as drift
+
+    good = _drift_tlog(tmp_path / "rover.tlog")
     bad = tmp_path / "bad.tlog"
     bad.write_bytes(np.random.default_rng(1).integers(0, 255, 4000, dtype=np.uint8).tobytes())
     out = tmp_path / "drift.json"
-    rc = cli.main(["drift", "-q", "--tlog", str(good), "--tlog", str(bad), "--profile", "ardupilot_rover",
-                   "--out", str(out)])
-    err = capsys.readouterr().err
-    assert rc == 1 and f"taco-mav drift: error: {bad}" in err
+    measured: list[str] = []
+    real = drift.measure_drift
+
+    def measure(d, **kw):
+        measured.append(d.name)
+        if len(measured) == 2:
+            raise RuntimeError("measuring failed")
+        return real(d, **kw)
+
+    monkeypatch.setattr(drift, "measure_drift", measure)
+    argv = ["drift", "-q", "--tlog", str(good), "--tlog", "TLOG2", "--profile", "ardupilot_rover", "--out", str(out)]
+    rc = cli.main([str(bad) if a == "TLOG2" else a for a in argv])
+    assert rc == 1 and f"taco-mav drift: error: {bad}" in capsys.readouterr().err
+    assert measured == [] and not out.exists()
+    rc = cli.main([str(_drift_tlog(tmp_path / "second.tlog")) if a == "TLOG2" else a for a in argv])
+    assert rc == 1 and "measuring failed" in capsys.readouterr().err
     (rep,) = json.loads(out.read_text())["drives"]
+    assert measured == ["rover", "second"]
     assert rep["drive"] == "rover" and rep["q_speed_mps"] == pytest.approx(0.05, rel=0.3)
 
 

@@ -234,7 +234,7 @@ def test_torch_compile_traces_fg2_modules_after_the_import_scope(fake_model) -> 
     assert module_name.startswith("taco_mav_fg2_") and module_name in sys.modules
     torch._dynamo.reset()
     compiled = torch.compile(vit.forward_features, backend="eager", dynamic=False, fullgraph=False)
-    x = torch.rand(1, 3, 56, 84).half()
+    x = torch.rand(1, 3, 56, 84)
     with torch.inference_mode():
         got = compiled(x)["x_norm_patchtokens"]
         want = vit.forward_features(x)["x_norm_patchtokens"]
@@ -245,14 +245,34 @@ def test_torch_compile_traces_fg2_modules_after_the_import_scope(fake_model) -> 
 @pytest.mark.slow
 @pytest.mark.skipif(not os.environ.get("FG2_CHECKOUT"), reason="FG2_CHECKOUT (a vita-epfl/FG2 checkout) not set")
 def test_fast_path_equals_fg2s_forward_on_the_real_checkout() -> None:
-    """FG2's own model, random weights (seed 0), KITTI sizes, two crops of 512 px at 0.2 m/px."""
+    """FG2's own model, random weights (seed 0), KITTI sizes. The CVM on seeded random DINOv2-shaped features
+    (ground 26 x 88, two crops 36 x 36) and the KITTI camera; DINOv2 (ViT-L/14, fp32 on a CPU) with and without
+    SDPA on a small image (a full-size ViT-L pass takes minutes on a CPU)."""
     model = build_random_model(Path(os.environ["FG2_CHECKOUT"]), "cpu", seed=0)
+    gen = torch.Generator().manual_seed(7)
+    grd = torch.randn(1, 1024, 26, 88, generator=gen)
+    sat = torch.randn(2, 1024, 36, 36, generator=gen)
     camera = GroundCamera.from_config(CameraConfig())
-    frame, crops = inputs(6, size=512, m_per_px=0.2, camera=camera, n=2)
-    both = coupling_both_ways(model, frame, crops)
-    (fast_score, fast_raw), (slow_score, slow_raw) = both[True], both[False]
+    gh, gw = model.settings.ground_size
+    K = torch.as_tensor(pixel_from_level(camera), dtype=torch.float32)[None]
+    camera_k = torch.diag(torch.tensor([gw / camera.width, gh / camera.height, 1.0])) @ K
+    with torch.inference_mode():
+        desc, keep = fg2_fast.ground_branch(model.cvm, grd, camera_k, model.settings.ground_size)
+        fast_score, fast_raw = fg2_fast.coupling(model.cvm, fg2_fast.aerial_descriptors(model.cvm, sat), desc, keep)
+        slow_score, slow_raw = model.cvm(grd.repeat(2, 1, 1, 1), sat, camera_k.repeat(2, 1, 1))
+        image = torch.rand(1, 3, 98, 126, generator=gen)
+        fast_feat = model.extractor(image)
+        model.set_fast(False)
+        slow_feat = model.extractor(image)
     assert torch.isfinite(fast_score).all() and torch.isfinite(slow_score).all()
-    assert torch.equal(torch.isfinite(fast_raw), torch.isfinite(slow_raw))
+    assert torch.equal(torch.isfinite(fast_raw), torch.isfinite(slow_raw)) and bool(keep.any())
     diff = float((fast_score - slow_score).abs().max())
-    print(f"real FG2 checkout, random weights: max |coupling fast - published| = {diff:.3g}")
-    assert diff < 1e-4, diff
+    finite = torch.isfinite(slow_raw)
+    raw_diff = float((fast_raw[finite] - slow_raw[finite]).abs().max())
+    feat_diff = float((fast_feat - slow_feat).abs().max())
+    print(f"real FG2 checkout, random weights: max |coupling fast - published| = {diff:.3g} (raw scores "
+          f"{raw_diff:.3g}, {int(finite[0].any(0).sum())} of {finite.shape[2]} ground cells seen); DINOv2 SDPA vs "
+          f"FG2's attention: max |feature difference| = {feat_diff:.3g} (features up to "
+          f"{float(slow_feat.abs().max()):.3g})")
+    assert diff < 1e-5 and raw_diff < 1e-3 * max(1.0, float(slow_raw[finite].abs().max()))
+    assert feat_diff < 1e-4 * max(1.0, float(slow_feat.abs().max()))

@@ -93,10 +93,13 @@ def test_planted_30m_silent_outlier_is_rejected():
         return oracle.answer(q)
 
     loc, err, _ = run_plus(d, planted=planted)
+    _, clean, _ = run_plus(d)
     assert hits
     reasons = {o.query_id: o.reason for o in loc.outcomes}
     assert all(reasons[h] == "innovation_gate" for h in hits)
-    assert err.max() < 2.5
+    # the outlier moves nothing: the error is what the drive without it has, plus the dead reckoning over the
+    # fix it cost (the planted window holds no good answer)
+    assert err.max() < 3.5 and err.max() < clean.max() + 0.6
     assert loc.lock.losses == 0
 
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from taco_mav.core.lock import LockMonitor, LockState
-from taco_mav.core.plus import (FixNoiseScale, PlusParams, bias_decay, consensus, cross_arm, grid_rings, hex_offsets,
-                                process_noise_plus)
+from taco_mav.core.plus import (FixNoiseScale, PlusParams, VarianceFactor, bias_decay, consensus, cross_arm, grid_rings,
+                                hex_offsets, process_noise_plus)
 from taco_mav.core.stationary import StationaryDetector
 from taco_mav.core.ukf import PlanarUkf
 
@@ -154,3 +154,25 @@ def test_six_state_filter_separates_a_compass_bias_from_the_heading():
     assert f.x[2] == pytest.approx(0.0, abs=0.003)  # heading: the truth, not the compass
     assert f.x[5] == pytest.approx(bias, abs=0.003)
     assert abs(f.x[1]) < 0.3  # the track is no longer bent by the bias (60 m x 0.02 rad = 1.2 m without)
+
+
+def test_variance_factor_is_half_the_mean_nis_of_the_fixes():
+    """Issue 18: 2-D innovations drawn from k (P + R) give a mean NIS of 2 k against P + R, so the factor that
+    makes the reported covariance honest is k; it starts at 1 and is clipped to [lo, hi]."""
+    rng = np.random.default_rng(5)
+    S = np.diag([1.0, 4.0])  # P + R the filter believes, m^2
+    for k in (0.1, 0.5, 2.0):
+        vf = VarianceFactor(lo=0.01, hi=4.0, window=20)
+        assert vf.factor == 1.0
+        ks = []
+        for _ in range(400):
+            nu = rng.multivariate_normal(np.zeros(2), k * S)
+            ks.append(vf.update(float(nu @ np.linalg.solve(S, nu))))
+        assert np.median(ks[100:]) == pytest.approx(k, rel=0.2)
+    vf = VarianceFactor(lo=0.1, hi=4.0, window=20)
+    for _ in range(100):
+        vf.update(0.0)
+    assert vf.factor == pytest.approx(0.1)
+    for _ in range(100):
+        vf.update(1e6)  # one sample is capped (50), the factor at hi
+    assert vf.factor == pytest.approx(4.0)

@@ -13,7 +13,7 @@ import json
 import logging
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from taco_mav.errors import TacoError, UsageError
 
@@ -28,6 +28,7 @@ SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.classical",
     "taco_mav.bench.daemon",
     "taco_mav.bench.world3d",
+    "taco_mav.bench.fg2",
 )
 SECTION_NAMES: tuple[str, ...] = tuple(name.rsplit(".", 1)[-1] for name in SECTIONS)
 
@@ -49,9 +50,11 @@ def _write(out: Path, results: dict[str, Any]) -> None:
     out.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
 
 
-def run_bench(out: Path, only: Sequence[str] | None = None, progress: bool = True) -> dict[str, Any]:
+def run_bench(out: Path, only: Sequence[str] | None = None, progress: bool = True,
+              options: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, Any]:
     """Run every bench section (or those whose short name is in `only`) and write the merged JSON to `out`;
-    on a failing section (or Ctrl-C) the keys measured so far are written before the error propagates."""
+    on a failing section (or Ctrl-C) the keys measured so far are written before the error propagates.
+    options: keyword arguments for a section's run(), by short name (e.g. {"fg2": {"checkout": ...}})."""
     wanted = check_sections(only)
     out = Path(out)
     results: dict[str, Any] = {}
@@ -64,7 +67,7 @@ def run_bench(out: Path, only: Sequence[str] | None = None, progress: bool = Tru
             start = time.perf_counter()
             log.info("bench section %s ...", short)
             try:
-                results.update(importlib.import_module(name).run(progress=progress))
+                results.update(importlib.import_module(name).run(progress=progress, **(options or {}).get(short, {})))
             except (TacoError, KeyboardInterrupt):
                 raise
             except Exception as exc:

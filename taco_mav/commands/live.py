@@ -54,7 +54,6 @@ def check_connect(text: str, baud: int) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     from taco_mav.config import Estimator, load_profile
     from taco_mav.link.appendlog import session_dir
-    from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.link.signing import key_file
 
     origin = None
@@ -67,6 +66,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     estimator = Estimator(args.estimator) if args.estimator else profile.estimator
     signing = key_file(args.signing_key) if args.signing_key else None
     check_camera_and_map(args, profile.matcher)
+    from taco_mav.link.daemon import Daemon, DaemonOptions  # the heavy import, after every check
+
     log_dir = None
     if args.log_dir:
         log_dir = session_dir(checks.output_dir(args.log_dir, "--log-dir"))  # each session its own folder

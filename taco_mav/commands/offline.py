@@ -45,7 +45,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     only = list(checks.names(args.only, "--only", SECTION_NAMES)) if args.only is not None else None
     out = checks.output_file(args.out)
-    results = run_bench(out, only=only, progress=show_progress(args))
+    fg2 = {"checkout": args.fg2_checkout, "checkpoint": args.fg2_checkpoint, "device": args.device,
+           "triggers": args.fg2_triggers, "warmup": args.fg2_warmup, "fast": not args.fg2_published, "compile": args.fg2_compile}
+    results = run_bench(out, only=only, progress=show_progress(args), options={"fg2": fg2})
     for key in sorted(results):
         print(f"{key:45s} {results[key]}")
     print(f"wrote {out}")
@@ -67,6 +69,15 @@ def cmd_world(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from taco_mav.config import load_profile
+
+    load_profile(args.profile)  # the profile's own errors first: they name the file and key
+    checks.number(args.matcher_latency, "--matcher-latency", 0.0, 60.0)
+    check_sources(args)
+    if not args.drive and not args.sequences:
+        raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
+    if args.drive and args.sequences:
+        raise UsageError("give either --sequences (with --kitti-root) or --drive, not both")
     from taco_mav.evaluation.evaluate import ABLATIONS, EvalRequest, evaluate, resolve_profile
 
     ablations: tuple[str, ...] = ()
@@ -74,18 +85,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
         ablations = ("all",) if args.ablations == "all" else checks.names(args.ablations, "--ablations", ABLATIONS)
     elif args.ablation:
         ablations = ("full", *checks.names(args.ablation, "--ablation", ABLATIONS))
-    checks.number(args.matcher_latency, "--matcher-latency", 0.0, 60.0)
     req = EvalRequest(
         out=Path(args.out), profile=args.profile, kitti_root=Path(args.kitti_root) if args.kitti_root else None,
         sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive), matcher=args.matcher,
         ablations=ablations, seed=args.seed, latency_s=args.matcher_latency, apply_on_arrival=args.apply_on_arrival,
         estimator=args.estimator, cross_area=args.cross_area, plots=not args.no_plots, progress=show_progress(args))
-    profile = resolve_profile(req)  # the profile's own errors first: they name the file and key
-    check_sources(args)
-    if not req.drives and not req.sequences:
-        raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
-    if req.drives and req.sequences:
-        raise UsageError("give either --sequences (with --kitti-root) or --drive, not both")
+    profile = resolve_profile(req)  # with the command line's overrides (--matcher, --estimator, --cross-area)
     checks.fresh_folder(checks.output_dir(args.out), "results.json", args.force)
     log.info("evaluating with estimator %s, matcher %s into %s", profile.estimator.value, profile.matcher, args.out)
     results = evaluate(req)
@@ -101,15 +106,16 @@ def cmd_drift(args: argparse.Namespace) -> int:
     import json
 
     from taco_mav.config import load_profile
-    from taco_mav.datasets.tlog import load_tlog
-    from taco_mav.evaluation.drift import measure_drift, report_text
-    from taco_mav.evaluation.evaluate import EvalRequest, load_drives
 
     profile = load_profile(args.profile)
     checks.number(args.min_speed, "--min-speed", 0.0, 100.0)
     tlogs = [checks.input_file(f, "--tlog") for f in args.tlog]
     check_sources(args)
     out = checks.output_file(args.out) if args.out else None
+    from taco_mav.datasets.tlog import load_tlog
+    from taco_mav.evaluation.drift import measure_drift, report_text
+    from taco_mav.evaluation.evaluate import EvalRequest, load_drives
+
     name = Path(args.profile).stem
     reports: list[Any] = []
 
@@ -119,14 +125,13 @@ def cmd_drift(args: argparse.Namespace) -> int:
             out.write_text(json.dumps(doc, indent=2) + "\n")
             print(f"wrote {out}")
 
+    drives = [load_tlog(f, imu_message=args.imu_message) for f in tlogs]  # every input read before measuring
+    if args.sequences or args.drive or not tlogs:
+        drives += load_drives(EvalRequest(out=Path("."), kitti_root=Path(args.kitti_root) if args.kitti_root else None,
+                                          sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive)))
     try:
-        for f in tlogs:
-            reports.append(measure_drift(load_tlog(f, imu_message=args.imu_message), min_speed_mps=args.min_speed))
-        if args.sequences or args.drive or not tlogs:
-            req = EvalRequest(out=Path("."), kitti_root=Path(args.kitti_root) if args.kitti_root else None,
-                              sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive))
-            for drive in load_drives(req):
-                reports.append(measure_drift(drive, min_speed_mps=args.min_speed))
+        for drive in drives:
+            reports.append(measure_drift(drive, min_speed_mps=args.min_speed))
     except BaseException:
         if reports:  # work done is never lost to a later drive's error
             print("\n\n".join(report_text(r, profile.plus, name) for r in reports))

@@ -69,7 +69,7 @@ class PlusConfig:
     # Distance trigger (issue 18): also a fix once this many metres were driven since the last accepted one, so the
     # fixes are spread along the road rather than bunched where the covariance grows (0: off); a failed query is
     # retried after trigger_retry_m (a miss is not counted in fixes/km, so it is not budget).
-    trigger_distance_m: float = field(default=40.0, metadata=bounded(0.0))
+    trigger_distance_m: float = field(default=0.0, metadata=bounded(0.0))
     trigger_retry_m: float = field(default=10.0, metadata=bounded(0.0))
     cross_k: float = field(default=2.0, metadata=bounded(0.0))  # cross arm = clip(k sigma_h, min, max)
     cross_min_m: float = field(default=1.0, metadata=bounded(0.0))

@@ -64,7 +64,7 @@ class PlusParams:
     # trigger and search
     trigger_sigma_m: float = 3.0
     trigger_time_s: float = 10.0
-    trigger_distance_m: float = 40.0  # also ask once this many metres passed since the last accepted fix (0: off)
+    trigger_distance_m: float = 0.0  # also ask once this many metres passed since the last accepted fix (0: off)
     trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
     cross_k: float = 2.0  # cross arm = clip(k sigma_h, min, max)
     cross_min_m: float = 1.0
@@ -232,3 +232,5 @@ class VarianceFactor:
     def factor(self) -> float:
         """The variance factor to apply to the reported covariance (dimensionless)."""
         return min(max(self.k, self.lo), self.hi)
+
+

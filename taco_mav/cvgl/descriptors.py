@@ -10,13 +10,16 @@ channels.
   grass and asphalt turns a match into an anti-correlation.
 - "orientation" (C = 2): the orientation of the image gradient in doubled-angle form, weighted by gradient
   magnitude and normalised by the local mean magnitude:
-      (|g| cos 2 phi, |g| sin 2 phi), smoothed over `pool_px` (cell pooling, as HOG does), then divided by the
+      (|g| cos 2 phi, |g| sin 2 phi) of the image smoothed over `smooth_px` (0.7 px), optionally pooled over
+      `pool_px` (cell pooling, as HOG does; off by default: pooling over 1 px cost accuracy and robustness on
+      the bench mosaic, 0.35 m against 0.21 m median error on clean frames), then divided by the
       Gaussian(`sigma_px`) local mean of |g| plus a floor (5 % of the image's mean |g|, and 0.25 grey
       levels per pixel).
   Doubling the angle makes it blind to the polarity of an edge (a dark road on bright grass and a bright road
   on dark soil give the same vector), the local normalisation to gain, gamma and soft shadows' brightness; the
-  pooled vectors are the normalised structure tensor's orientation part, so uniform areas and isotropic noise
-  give short vectors and long straight edges (kerbs, lane lines, roof and field boundaries) dominate. The
+  vectors are weighted by gradient strength, so uniform areas and weak noise
+  give short vectors and long straight edges (kerbs, lane lines, roof and field boundaries) dominate (pooled, the
+  vectors would be the normalised structure tensor's orientation part). The
   correlation of two such fields is the cosine similarity of the edge orientations, weighted by their strength.
 """
 
@@ -55,7 +58,7 @@ def lcn(img: np.ndarray, mask: np.ndarray | None, sigma_px: float) -> np.ndarray
     return (d / np.sqrt(var + 1.0))[None]
 
 
-def orientation(img: np.ndarray, mask: np.ndarray | None, sigma_px: float, pool_px: float = 1.0,
+def orientation(img: np.ndarray, mask: np.ndarray | None, sigma_px: float, pool_px: float = 0.0,
                 smooth_px: float = 0.7, floor: float = 0.05) -> np.ndarray:
     """Gradient-orientation channels (2, H, W) in doubled-angle form (module docstring). Outside `mask` the
     image is first filled with its local mean (so the mask's border makes no edge), and the output is zero

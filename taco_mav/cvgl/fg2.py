@@ -126,6 +126,10 @@ class Fg2Matcher:
             self.model.set_fast(cfg.fast)
             if cfg.compile:
                 self.model.compile_parts()
+            if self.device.type != "cuda":
+                log.warning("fg2.device %r runs on %s: correct but slow (the published FG2 takes minutes per "
+                            "trigger on a CPU); set fg2.device: cuda on a machine with a GPU", cfg.device,
+                            self.device)
         elif cfg.compile:
             log.warning("fg2.compile: %s has no compilable parts; running it as it is", type(self.model).__name__)
         log.info("fg2: %s on %s, fast path %s, compile %s, fp16 autocast %s", type(self.model).__name__,

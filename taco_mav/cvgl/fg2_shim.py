@@ -7,7 +7,10 @@ sat_feature, camera_k) returns (matching_score, matching_score_original); `model
 `DinoExtractor(dinov2_weights)`. FG2's modules read "./config.ini" at import and import `models`, `utils`,
 `att_layers`, `DINO_modules` as top-level packages, so the import runs with the checkout as working directory and
 first on sys.path, and both are restored afterwards (as are the RNG states and torch's determinism flags, which
-FG2's imports set globally).
+FG2's imports set globally). FG2's bare top-level names leave sys.modules again, but its modules stay registered
+as `taco_mav_fg2_<n>.<name>` so that torch.compile, which re-imports a traced function's module by name for its
+guards, finds them. mmcv: its CUDA kernel on CUDA when installed, else (and on every non-CUDA device)
+`taco_mav.cvgl.fg2_mmcv`, a PyTorch stand-in with mmcv's parameters and the CUDA kernel's semantics.
 
 The model is built the way `kitti_train_test.py` builds it: seed, DinoExtractor, then CVM. A checkpoint saved
 from a model built on CUDA lacks `grd_grid_queries` (FG2 creates it with `.to(device)`, which unregisters it), so
@@ -47,10 +50,11 @@ FG2_PACKAGES = ("models", "utils", "att_layers", "DINO_modules", "dataloaders")
 # Keys the KITTI checkpoint may lack (unregistered on CUDA, see the module docstring).
 SEEDED_KEYS = ("grd_grid_queries",)
 INSTALL_HINTS = {
-    "mmcv": "FG2 needs mmcv 2.x built with its CUDA ops (not mmcv-lite): pip install -U openmim && "
-            "mim install 'mmcv>=2.0.0' (matching your torch and CUDA versions)",
+    "mmcv": "mmcv 2.x with its CUDA ops (not mmcv-lite) is optional (taco_mav.cvgl.fg2_mmcv stands in): pip "
+            "install -U openmim && mim install 'mmcv>=2.0.0' (matching your torch and CUDA versions)",
     "mmengine": "pip install mmengine (mmcv 2.x depends on it)",
     "matplotlib": "pip install matplotlib (FG2's models/modules.py imports it)",
+    "einops": "pip install einops (FG2's att_layers/transformer.py imports it)",
 }
 
 

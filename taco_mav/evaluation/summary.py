@@ -171,7 +171,9 @@ def table_md(per_seq: dict[str, dict[str, Any]], label: str = "") -> str:
 
 ABLATION_LABELS = {"full": "TACO (full)", "no_yaw_gate": "- no yaw-residual gate", "single_crop": "- single crop",
                    "isotropic_noise": "- isotropic noise", "no_forward_bias": "- no forward bias",
-                   "ukf_only": "- no Pose2 smoother (UKF only)"}
+                   "ukf_only": "- no Pose2 smoother (UKF only)",
+                   "no_distance_trigger": "- taco+: no distance trigger (covariance and time only)",
+                   "no_report_calibration": "- taco+: reported accuracy = filter covariance"}
 
 
 def ablation_md(ablations: dict[str, dict[str, Any]]) -> str:
