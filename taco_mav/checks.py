@@ -209,7 +209,8 @@ def join_negative_values(argv: Sequence[str]) -> list[str]:
     i = 0
     while i < len(argv):
         tok = argv[i]
-        if tok.startswith("--") and tok != "--" and "=" not in tok and i + 1 < len(argv) and _NEGATIVE_VALUE.match(argv[i + 1]):
+        takes_value = tok.startswith("--") and tok != "--" and "=" not in tok
+        if takes_value and i + 1 < len(argv) and _NEGATIVE_VALUE.match(argv[i + 1]):
             out.append(f"{tok}={argv[i + 1]}")
             i += 2
             continue

@@ -39,12 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", parents=[common], help="speed/accuracy benchmarks to JSON")
     p.add_argument("--out", required=True, help="output JSON file")
     p.add_argument("--only", help=f"comma-separated section names: {', '.join(SECTION_NAMES)}")
-    p.add_argument("--fg2-checkout", help="fg2 section: a vita-epfl/FG2 checkout (without it the fg2 keys are absent)")
+    p.add_argument("--fg2-checkout", help="fg2 section: a vita-epfl/FG2 checkout (without it the fg2 keys are "
+                   "absent)")
     p.add_argument("--fg2-checkpoint", help="fg2 section: FG2's KITTI checkpoint (default: random weights)")
     p.add_argument("--device", default="cuda", choices=("cuda", "cpu", "auto"), help="fg2 section: torch device "
                    "(default cuda)")
     p.add_argument("--fg2-triggers", type=int, help="fg2 section: timed triggers (default 20 on CUDA, 3 on a CPU)")
-    p.add_argument("--fg2-warmup", type=int, help="fg2 section: untimed triggers first (default 3 on CUDA, 1 on a CPU)")
+    p.add_argument("--fg2-warmup", type=int, help="fg2 section: untimed triggers first (default 3 on CUDA, 1 on a "
+                   "CPU)")
     p.add_argument("--fg2-published", action="store_true", help="fg2 section: FG2's own forward (fg2.fast: false)")
     p.add_argument("--fg2-compile", action="store_true", help="fg2 section: torch.compile DINOv2 (fg2.compile)")
     p.set_defaults(func=offline.cmd_bench)

@@ -44,7 +44,8 @@ class TacoArgumentParser(argparse.ArgumentParser):
     argv: Sequence[str] = ()  # the arguments being parsed (set by parse_args), to name an unknown option
     global_options: frozenset[str] = frozenset()  # options of the main parser, valid in any position
 
-    def parse_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> argparse.Namespace:  # type: ignore[override]
+    def parse_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                   namespace: Any = None) -> argparse.Namespace:
         TacoArgumentParser.argv = tuple(sys.argv[1:] if args is None else args)
         TacoArgumentParser.global_options = frozenset(self._option_string_actions)
         return super().parse_args(args, namespace)

@@ -332,7 +332,8 @@ def test_ctrl_c_in_the_demo_exits_130_and_writes_what_was_played(tmp_path: Path)
     try:
         deadline = time.monotonic() + 240
         events = run / "daemon" / "events.jsonl"
-        while time.monotonic() < deadline and '"event": "origin"' not in (events.read_text() if events.exists() else ""):
+        while time.monotonic() < deadline and '"event": "origin"' not in (events.read_text()
+                                                                           if events.exists() else ""):
             time.sleep(0.2)  # the daemon flushes its events every second
         time.sleep(8.0)  # the drive is playing (GNSS denied after 1 s)
         proc.send_signal(signal.SIGINT)

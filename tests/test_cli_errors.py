@@ -97,7 +97,8 @@ CASES: dict[str, Case] = {
                                                                                       "truncated")),
     "eval_sequence_unknown": Case("eval --kitti-root {T}/empty --sequences 99 --out {T}/e", 2, ("--sequences 99",)),
     "eval_sequences_no_root": Case("eval --sequences 05 --out {T}/e", 2, ("--kitti-root",)),
-    "eval_ablation_unknown": Case("eval --drive {T}/drive --ablation no_gate --out {T}/e", 2, ("no_gate", "no_yaw_gate")),
+    "eval_ablation_unknown": Case("eval --drive {T}/drive --ablation no_gate --out {T}/e", 2,
+                                  ("no_gate", "no_yaw_gate")),
     "eval_ablations_unknown": Case("eval --drive {T}/drive --ablations full,foo --out {T}/e", 2, ("--ablations foo",)),
     "eval_matcher_unknown": Case("eval --drive {T}/drive --matcher sift --out {T}/e", 2, ("--matcher", "sift")),
     "eval_estimator_unknown": Case("eval --drive {T}/drive --estimator ekf --out {T}/e", 2, ("--estimator", "ekf")),
@@ -109,7 +110,8 @@ CASES: dict[str, Case] = {
     # drift
     "drift_tlog_missing": Case("drift --tlog {T}/no.tlog", 2, ("--tlog {T}/no.tlog", "no such file")),
     "drift_tlog_garbage": Case("drift --tlog {T}/garbage.tlog", 1, ("{T}/garbage.tlog",)),
-    "drift_out_unwritable": Case("drift --tlog {T}/garbage.tlog --out {T}/afile/d.json", 2, ("--out {T}/afile/d.json",)),
+    "drift_out_unwritable": Case("drift --tlog {T}/garbage.tlog --out {T}/afile/d.json", 2,
+                                 ("--out {T}/afile/d.json",)),
     "drift_min_speed": Case("drift --tlog {T}/garbage.tlog --min-speed -1", 2, ("--min-speed -1",)),
     # run (the daemon)
     "run_no_camera": Case(RUN, 2, ("--camera", "--dead-reckoning")),
@@ -127,7 +129,8 @@ CASES: dict[str, Case] = {
     "run_connect_no_port": Case("run --profile synthetic --connect udpin:127.0.0.1 --dead-reckoning", 2,
                                 ("--connect", "udpin:127.0.0.1")),
     "run_origin_bad": Case(f"{RUN} --dead-reckoning --origin 1,2,3,4", 2, ("--origin 1,2,3,4",)),
-    "run_log_dir_unwritable": Case(f"{RUN} --dead-reckoning --log-dir {{T}}/afile/logs", 2, ("--log-dir {T}/afile/logs",)),
+    "run_log_dir_unwritable": Case(f"{RUN} --dead-reckoning --log-dir {{T}}/afile/logs", 2,
+                                   ("--log-dir {T}/afile/logs",)),
     "run_signing_key_missing": Case(f"{RUN} --dead-reckoning --signing-key {{T}}/no.key", 2, ("{T}/no.key",)),
     "run_estimator_unknown": Case(f"{RUN} --dead-reckoning --estimator ekf", 2, ("--estimator", "ekf")),
     # sim
@@ -141,10 +144,12 @@ CASES: dict[str, Case] = {
     "sim_spoof_drift_alone": Case(f"{SIM} --out {{T}}/s --spoof-drift 1", 2, ("--spoof-drift",)),
     # calibrate
     "calibrate_images_missing": Case("calibrate --images {T}/nopics --out {T}/c.yaml", 2, ("--images {T}/nopics",)),
-    "calibrate_images_empty": Case("calibrate --images {T}/empty --out {T}/c.yaml", 1, ("--images {T}/empty", "no images")),
+    "calibrate_images_empty": Case("calibrate --images {T}/empty --out {T}/c.yaml", 1,
+                                   ("--images {T}/empty", "no images")),
     "calibrate_board_bad": Case("calibrate --images {T}/empty --board 9by6 --out {T}/c.yaml", 2, ("--board", "9by6")),
     "calibrate_square_zero": Case("calibrate --images {T}/empty --square 0 --out {T}/c.yaml", 2, ("--square 0",)),
-    "calibrate_out_unwritable": Case("calibrate --images {T}/empty --out {T}/afile/c.yaml", 2, ("--out {T}/afile/c.yaml",)),
+    "calibrate_out_unwritable": Case("calibrate --images {T}/empty --out {T}/afile/c.yaml", 2,
+                                     ("--out {T}/afile/c.yaml",)),
     # demo
     "demo_speed_zero": Case("demo --out {T}/d --speed 0", 2, ("--speed 0",)),
     "demo_out_unwritable": Case("demo --out {T}/afile/d", 2, ("--out {T}/afile/d",)),

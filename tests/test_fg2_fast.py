@@ -8,7 +8,6 @@ with random weights (slow on a CPU: minutes).
 
 from __future__ import annotations
 
-import importlib
 import math
 import os
 import sys
@@ -60,8 +59,9 @@ def reference_msda(value: torch.Tensor, shapes: list[tuple[int, int]], loc: torc
                             continue
                         x0, y0 = math.floor(x), math.floor(y)
                         acc = torch.zeros(dim, dtype=torch.float64)
-                        for yy, xx, wgt in ((y0, x0, (y0 + 1 - y) * (x0 + 1 - x)), (y0, x0 + 1, (y0 + 1 - y) * (x - x0)),
-                                            (y0 + 1, x0, (y - y0) * (x0 + 1 - x)), (y0 + 1, x0 + 1, (y - y0) * (x - x0))):
+                        corners = ((y0, x0, (y0 + 1 - y) * (x0 + 1 - x)), (y0, x0 + 1, (y0 + 1 - y) * (x - x0)),
+                                   (y0 + 1, x0, (y - y0) * (x0 + 1 - x)), (y0 + 1, x0 + 1, (y - y0) * (x - x0)))
+                        for yy, xx, wgt in corners:
                             if 0 <= yy < H and 0 <= xx < W:
                                 acc += wgt * fmap[yy, xx]
                         out[b, q, m] += float(weights[b, q, m, lv, p]) * acc
@@ -270,9 +270,11 @@ def test_fast_path_equals_fg2s_forward_on_the_real_checkout() -> None:
     finite = torch.isfinite(slow_raw)
     raw_diff = float((fast_raw[finite] - slow_raw[finite]).abs().max())
     feat_diff = float((fast_feat - slow_feat).abs().max())
-    print(f"real FG2 checkout, random weights: max |coupling fast - published| = {diff:.3g} (raw scores "
+    print(f"real FG2 checkout, random weights: max |coupling fast - published| = {diff:.3g} (coupling up to "
+          f"{float(slow_score.max()):.3g}; raw scores "
           f"{raw_diff:.3g}, {int(finite[0].any(0).sum())} of {finite.shape[2]} ground cells seen); DINOv2 SDPA vs "
           f"FG2's attention: max |feature difference| = {feat_diff:.3g} (features up to "
           f"{float(slow_feat.abs().max()):.3g})")
-    assert diff < 1e-5 and raw_diff < 1e-3 * max(1.0, float(slow_raw[finite].abs().max()))
+    assert diff <= 1e-4 * float(slow_score.max())  # relative to the largest coupling entry
+    assert raw_diff <= 1e-5 * max(1.0, float(slow_raw[finite].abs().max()))
     assert feat_diff < 1e-4 * max(1.0, float(slow_feat.abs().max()))

@@ -48,8 +48,10 @@ class ReferencePreintegrator(Preintegrator):
 class ReferenceStationary:
     """StationaryDetector as written before (one deque of tuples, generator sums)."""
 
-    def __init__(self, window_s: float, gyro_max: float, accel_std_max: float, accel_mean_max: float = math.inf) -> None:
-        self.window_s, self.gyro_max, self.accel_std_max, self.accel_mean_max = window_s, gyro_max, accel_std_max, accel_mean_max
+    def __init__(self, window_s: float, gyro_max: float, accel_std_max: float,
+                 accel_mean_max: float = math.inf) -> None:
+        self.window_s, self.gyro_max = window_s, gyro_max
+        self.accel_std_max, self.accel_mean_max = accel_std_max, accel_mean_max
         self._samples: deque = deque(maxlen=4096)
 
     def add(self, t, accel, gyro, accel_fwd=0.0) -> None:

@@ -5,6 +5,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from helpers import OracleMatcher, simulate
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
@@ -195,3 +196,29 @@ def test_no_fix_run_grows_uncertainty_and_declares_loss_honestly():
     assert loc.lock.losses == 1
     assert sig[-1] > sig[10]
     assert all(isinstance(v, float) and math.isfinite(v) for v in sig)
+
+
+def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_sooner():
+    """Issue 18: with trigger_distance_m the accepted fixes come every 40 m driven (the covariance trigger out of
+    the way), and a query that failed is asked again after trigger_retry_m, not after another 40 m."""
+    d = _drive()
+    params = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, trigger_distance_m=40.0,
+                                                                trigger_retry_m=10.0, trigger_sigma_m=1e9))
+    loc, err, _ = run_plus(d, params=params)
+    odo = np.concatenate([[0.0], np.cumsum(d.speed[1:] * np.diff(d.t))])  # distance driven at each sample, m
+    at = lambda t: float(np.interp(t, d.t, odo))  # noqa: E731
+    gaps = np.diff([at(o.capture_t) for o in loc.outcomes if o.accepted])
+    assert len(gaps) > 20 and np.median(gaps) == pytest.approx(40.0, abs=2.0) and gaps.max() < 45.0
+    assert _rms(err) < 1.0
+
+    missed = []
+
+    def weak_once(q):  # the first distance query after 60 s finds nothing usable
+        if q.capture_t > 60.0 and not missed:
+            missed.append(q.capture_t)
+            return [MatchResult(np.eye(2), np.zeros(2), 0.05)] * len(q.crop_centres)
+        return OracleMatcher(d, seed=2).answer(q)
+
+    loc, _, _ = run_plus(d, params=params, planted=weak_once)
+    after = [o.capture_t for o in loc.outcomes if o.capture_t > missed[0]]
+    assert 9.0 <= at(after[0]) - at(missed[0]) <= 12.0  # retried after ~10 m

@@ -81,6 +81,10 @@ def test_consensus_prefers_the_agreeing_cluster_over_the_single_heaviest():
     assert c is not None and c.index == 0 and c.support == 3
     assert np.allclose(c.xy, (w[:3, None] * xy[:3]).sum(0) / w[:3].sum())
     assert consensus(xy, w, np.zeros(5, bool), 3.0) is None
+    # issue 18: power 2 is the inverse-variance mean under sigma ~ 1/w (weights w^2), same cluster and weight
+    c2 = consensus(xy, w, usable, 3.0, power=2.0)
+    assert c2.index == c.index and c2.support == c.support and c2.weight == c.weight
+    assert np.allclose(c2.xy, (w[:3, None] ** 2 * xy[:3]).sum(0) / (w[:3] ** 2).sum())
 
 
 def test_lock_monitor_needs_misses_and_time_then_confirmations():

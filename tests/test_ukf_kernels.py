@@ -21,7 +21,8 @@ from taco_mav.core.preintegration import wrap_angle
 class ReferenceUkf:
     """PlanarUkf as it was before the kernels: filterpy's predict, numpy Joseph updates."""
 
-    def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> None:
+    def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0,
+                 kappa: float = 0.0) -> None:
         n = len(x0)
         points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
         self.f = UnscentedKalmanFilter(dim_x=n, dim_z=2, dt=0.1, hx=lambda x: x[:2], fx=_motion, points=points,
@@ -159,3 +160,39 @@ def test_predict_recovers_from_an_indefinite_covariance_like_the_reference() -> 
     ref.predict(1.0, 0.0, 0.01, Q)
     assert np.array_equal(fast.x, ref.f.x) and np.array_equal(fast.P, ref.f.P)
     assert np.linalg.eigvalsh(fast.P).min() > 0
+
+
+def test_positive_definiteness_decision_matches_eigvalsh_at_the_floor() -> None:
+    """The kernels' PD test (a Cholesky with a wide margin, else LAPACK's eigvalsh) decides exactly as
+    nearest_pd's eigvalsh(S).min() >= floor, also for eigenvalues within rounding of the floor."""
+    rng = np.random.default_rng(6)
+    floor = 1e-9
+    for trial in range(3000):
+        n = int(rng.choice([5, 6]))
+        V, _ = np.linalg.qr(rng.normal(size=(n, n)))
+        w = 10.0 ** rng.uniform(-8, 4, n)
+        w[int(rng.integers(n))] = floor * (1.0 + float(rng.choice([-1e-3, -1e-9, 0.0, 1e-9, 1e-3, 1.0, 1e3])))
+        S = (V * w) @ V.T
+        S = 0.5 * (S + S.T)
+        assert ukf_kernels.sym_pd(S, floor)[1] == bool(np.linalg.eigvalsh(S).min() >= floor), trial
+
+
+def test_process_noise_plus_kernel_matches_numpy() -> None:
+    """plus.process_noise_plus (compiled) against its numpy formulation, with and without the compass bias."""
+    from taco_mav.core.plus import PlusParams, bias_decay, process_noise_plus
+
+    rng = np.random.default_rng(8)
+    for sigma_beta in (0.0, 0.01):
+        p = PlusParams(compass_bias_sigma_rad=sigma_beta)
+        n = 6 if sigma_beta > 0 else 5
+        for _ in range(200):
+            theta, dt, dist = float(rng.uniform(-4, 4)), float(rng.uniform(1e-6, 0.5)), float(rng.uniform(0, 5))
+            want = np.zeros((n, n))
+            if n == 6:
+                want[5, 5] = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2)
+            rw = p.q_pos_mps * p.q_pos_mps * dt
+            want[:2, :2] = fix_covariance_reference(theta, p.q_fwd_per_m * dist, p.q_lat_per_m * dist) + rw * np.eye(2)
+            want[2, 2] = p.q_theta_rad * p.q_theta_rad * dt
+            want[3, 3] = p.q_speed_mps * p.q_speed_mps * dt
+            want[4, 4] = p.q_bias_mps2 * p.q_bias_mps2 * dt
+            assert np.array_equal(process_noise_plus(theta, dt, dist, p), want)

@@ -68,6 +68,24 @@ def test_facade_occludes_what_is_behind() -> None:
     assert d_b[-1, 0] == pytest.approx(ground_fwd, rel=0.01)
 
 
+def test_aerial_roofs_lean_but_the_ground_stays() -> None:
+    """render_ortho's lean: the 10 m cube's red roof moves lean x 10 m (0.1 -> 1 m east), its centroid
+    measured to a tenth of a metre; with no lean the roof sits on its footprint (x 20..30 m)."""
+    gl = _gl(_box_scene(True))
+    res, cx = 0.1, []
+    try:
+        for lean in ((0.0, 0.0), (0.1, 0.0)):
+            img = gl.render_ortho(10.0, 10.0, 300, 200, res, epoch="camera", light=Lighting(sun_elev_deg=89.0),
+                                  lean=lean).astype(int)
+            roof = (img[:, :, 0] > img[:, :, 2] + 60) & (img[:, :, 0] > img[:, :, 1] + 60)
+            cols = np.nonzero(roof)[1]
+            cx.append(10.0 + (cols.mean() + 0.5) * res)
+    finally:
+        gl.close()
+    assert cx[0] == pytest.approx(25.0, abs=0.1)
+    assert cx[1] - cx[0] == pytest.approx(1.0, abs=0.1)
+
+
 def test_scene3d_deterministic_and_epochs_differ(world3d: Path) -> None:
     """Same seed, same meshes; the aerial day's parked cars are partly the camera day's (STAY), not all."""
     a, b = (build_scene3d(_box_scene(True), np.random.default_rng(7)).static for _ in range(2))
@@ -159,7 +177,7 @@ def test_aerial_georeferencing_offset_matches_metadata(world3d: Path) -> None:
     light = Lighting(**{k: tuple(v) if isinstance(v, list) else v for k, v in aer["light"].items()})
     try:
         true = render_aerial(r.gl, x0, y1, n, n, AERIAL_M_PER_PX, np.zeros(2), light, aer["moving_cars_t_s"],
-                             np.random.default_rng(0))
+                             np.random.default_rng(0), tuple(aer["lean_m_per_m"]))
     finally:
         r.close()
     grey = lambda a: cv2.cvtColor(a, cv2.COLOR_RGB2GRAY).astype(np.float64)  # noqa: E731
@@ -224,3 +242,14 @@ def test_live_taco_plus_on_a_3d_world(world3d: Path) -> None:
     assert_autopilot_accepts_rate(seq)
     assert seq["ate_m"] < 2.0 and seq["max_error_m"] < 4.0, seq
     assert summary["fixes"].get("accepted", 0) + summary["fixes"].get("weak", 0) >= 1, summary["fixes"]
+
+
+def test_realism_is_checked(tmp_path: Path) -> None:
+    """An unknown realism and 3d along a real drive are refused before anything is written."""
+    from taco_mav.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="realism"):
+        build_world(tmp_path / "a", realism="photo", progress=False)
+    with pytest.raises(ConfigError, match="along-drive"):
+        build_world(tmp_path / "b", along_drive=tmp_path, realism="3d", progress=False)
+    assert not (tmp_path / "a" / "world.json").exists() and not (tmp_path / "b").exists()

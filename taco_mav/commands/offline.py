@@ -46,7 +46,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     only = list(checks.names(args.only, "--only", SECTION_NAMES)) if args.only is not None else None
     out = checks.output_file(args.out)
     fg2 = {"checkout": args.fg2_checkout, "checkpoint": args.fg2_checkpoint, "device": args.device,
-           "triggers": args.fg2_triggers, "warmup": args.fg2_warmup, "fast": not args.fg2_published, "compile": args.fg2_compile}
+           "triggers": args.fg2_triggers, "warmup": args.fg2_warmup, "fast": not args.fg2_published,
+           "compile": args.fg2_compile}
     results = run_bench(out, only=only, progress=show_progress(args), options={"fg2": fg2})
     for key in sorted(results):
         print(f"{key:45s} {results[key]}")
@@ -128,7 +129,8 @@ def cmd_drift(args: argparse.Namespace) -> int:
     drives = [load_tlog(f, imu_message=args.imu_message) for f in tlogs]  # every input read before measuring
     if args.sequences or args.drive or not tlogs:
         drives += load_drives(EvalRequest(out=Path("."), kitti_root=Path(args.kitti_root) if args.kitti_root else None,
-                                          sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive)))
+                                          sequences=sequences(args.sequences),
+                                          drives=tuple(Path(d) for d in args.drive)))
     try:
         for drive in drives:
             reports.append(measure_drift(drive, min_speed_mps=args.min_speed))

@@ -79,6 +79,9 @@ class PlusConfig:
     # the gate for an answer that no other crop of the trigger agrees with (consensus support 1), 2 dof, 95 %
     chi2_gate_single: float = field(default=5.99, metadata=bounded(0.0, open_lo=True))
     consensus_radius_m: float = field(default=3.0, metadata=bounded(0.0))
+    # The cluster mean weights each agreeing answer by w^this: 1 as in issue 7; 2 is inverse-variance weighting under
+    # the filter's own w -> sigma mapping (sigma ~ 1/w, Sec. III-F), the consistent choice (issue 18).
+    consensus_weight_power: float = field(default=1.0, metadata=bounded(0.0))
     w_min: float = field(default=0.2, metadata=bounded(0.0, 1.0))  # weaker answers count as misses
     # Adaptive fix noise: the paper's w -> sigma mapping (Sec. III-F) times a scale learnt from the innovations of
     # accepted fixes (covariance matching), clipped to [fix_scale_min, fix_scale_max]; the chi-square gate keeps

@@ -242,7 +242,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         with np.errstate(invalid="ignore"):
             yaw_ok = (np.abs(psi) <= p.yaw_residual_max_rad) | (not p.yaw_gate)
         usable = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
-        c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m)
+        c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m, qp.consensus_weight_power)
         self._last_fix_t = max(self._last_fix_t, now if p.apply_on_arrival else q.capture_t)
         if c is None:
             reason = "nonfinite" if not finite.any() else ("yaw_gate" if not (finite & yaw_ok).any() else "weak")

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from taco_mav.core.ukf import fix_covariance
+from taco_mav.core import ukf_kernels as _kernels
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,7 @@ class PlusParams:
     chi2_gate_single: float = 5.99  # ... for an answer no other crop agrees with, 95 %
     w_min: float = 0.2  # weaker answers count as misses
     consensus_radius_m: float = 3.0
+    consensus_weight_power: float = 1.0  # the cluster mean weights each member by w^this (2: inverse variance)
     # adaptive fix noise
     adaptive_fix_noise: bool = True
     fix_scale_min: float = 0.3
@@ -111,16 +112,9 @@ def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams) 
     heading theta (ENU rad): position random walk plus distance-proportional body-frame terms rotated into
     ENU, heading, speed-error and bias random walks, and the compass bias's Gauss-Markov driving noise."""
     n = n_states(p)
-    Q = np.zeros((n, n))
-    if n == 6:
-        Q[5, 5] = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2)
-    rw = p.q_pos_mps * p.q_pos_mps * dt
-    s_f, s_l = p.q_fwd_per_m * distance, p.q_lat_per_m * distance
-    Q[:2, :2] = fix_covariance(theta, s_f, s_l) + rw * np.eye(2)
-    Q[2, 2] = p.q_theta_rad * p.q_theta_rad * dt
-    Q[3, 3] = p.q_speed_mps * p.q_speed_mps * dt
-    Q[4, 4] = p.q_bias_mps2 * p.q_bias_mps2 * dt
-    return Q
+    q55 = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2) if n == 6 else 0.0
+    return _kernels.process_noise_plus(float(theta), float(dt), float(distance), n, q55, p.q_pos_mps, p.q_fwd_per_m,
+                                       p.q_lat_per_m, p.q_theta_rad, p.q_speed_mps, p.q_bias_mps2)  # compiled
 
 
 def cross_arm(sigma_h: float, p: PlusParams) -> float:
@@ -158,7 +152,7 @@ class Consensus:
     weight: float
 
 
-def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float) -> Consensus | None:
+def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float, power: float = 1.0) -> Consensus | None:
     """Pick the cluster of usable candidates (world positions `xy` (K, 2), weights `w` (K,)) with the largest
     summed weight, members within `radius_m` of its seed; None when nothing is usable. The cluster mean is
     reported with the best member's weight: nearby crops of one frame are not independent evidence."""
@@ -172,7 +166,8 @@ def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float
     seed = int(np.argmax(score + 1e-9 * ws))  # ties: the heavier seed
     m = members[seed]
     best = int(idx[m][np.argmax(ws[m])])
-    mean = (ws[m, None] * pts[m]).sum(axis=0) / ws[m].sum()
+    wm = ws[m] ** power
+    mean = (wm[:, None] * pts[m]).sum(axis=0) / wm.sum()
     return Consensus(best, mean, int(m.sum()), float(w[best]))
 
 

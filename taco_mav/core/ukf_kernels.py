@@ -10,13 +10,16 @@ KITTI tracks by ~1e-6 m and the smoothed paper-mode track by ~5e-4 m). These ker
 the operations of the reference (filterpy's `UnscentedKalmanFilter.predict` with `MerweScaledSigmaPoints`,
 and `ukf.joseph_update_reference`), in the same order: element-wise arithmetic is IEEE double without FMA
 contraction (numba's default), transcendental functions call the same libm as Python's `math`, and every
-reduction that numpy hands to BLAS/LAPACK (np.dot, np.linalg.solve, the Cholesky factor) goes through numba's
-np.dot / np.linalg.* which call the same OpenBLAS kernels. `tests/test_ukf_kernels.py` checks equality with
-filterpy and with the numpy reference on random inputs.
+reduction that numpy hands to BLAS/LAPACK (np.dot, np.linalg.solve, the Cholesky factor, eigvalsh) goes through
+numba's np.dot / np.linalg.*, which call scipy's bundled OpenBLAS: the same kernel code as numpy's (checked bit
+for bit on this stack; a BLAS build that differed would show in the tests, not silently). The one shortcut, the
+positive-definiteness test of `sym_pd`, only decides what LAPACK's eigvalsh would decide (see `_clearly_above`).
+`tests/test_ukf_kernels.py` checks equality with filterpy and with the numpy references on random inputs.
 
-`cache=True` writes the compiled code beside this module (__pycache__), so only the first run on a machine
-pays the JIT cost (a few seconds); `warm_up()` compiles every kernel on demand (the bench calls it first so
-compilation is not counted as steady state).
+`cache=True` writes the compiled code beside this module (__pycache__, or numba's user cache for a read-only
+install), so only the first run after an install or an edit pays the JIT cost (~10 s on a quiet machine, about a
+minute on a busy 2-core one); `warm_up()` compiles or loads every kernel (the bench calls it before timing, a
+service may call it at start-up).
 
 Frames and units as in ukf.py: x = [x m, y m, theta rad (ENU), (dv m/s, b m/s^2, (beta rad))].
 """
@@ -146,9 +149,9 @@ def predict(x: np.ndarray, P: np.ndarray, Q: np.ndarray, lam_n: float, Wm: np.nd
 def joseph(P: np.ndarray, H: np.ndarray, innovation: np.ndarray, R: np.ndarray,
            floor: float) -> tuple[np.ndarray, np.ndarray, float, bool]:
     """ukf.joseph_update_reference, compiled, less the state step: (K^T, S, NIS, ok) with K^T the transposed
-    gain (m x n, C-ordered, so that its .T is F-ordered as numpy's K), S the symmetrised Joseph-form covariance and ok as in `sym_pd` (when not ok the caller
-    lifts its eigenvalues). The caller adds K @ innovation in numpy: for an F-ordered K with 4 columns numpy's
-    gemv sums in an order numba's does not reproduce."""
+    gain (m x n, C-ordered, so that its .T is F-ordered as numpy's K), S the symmetrised Joseph-form covariance and
+    ok as in `sym_pd` (when not ok the caller lifts its eigenvalues). The caller adds K @ innovation in numpy: for an
+    F-ordered K with 4 columns numpy's gemv sums in an order numba's does not reproduce."""
     HP = np.dot(H, P)
     S = np.dot(HP, H.T) + R
     S = 0.5 * (S + S.T)
@@ -192,6 +195,24 @@ def process_noise(theta: float, sigma_fwd: float, sigma_lat: float, sigma_theta:
 
 
 @numba.njit(**_JIT)
+def process_noise_plus(theta: float, dt: float, distance: float, n: int, q55: float, q_pos: float, q_fwd: float,
+                       q_lat: float, q_theta: float, q_speed: float, q_bias: float) -> np.ndarray:
+    """plus.process_noise_plus compiled (q55: the compass-bias entry, computed by the caller)."""
+    Q = np.zeros((n, n))
+    if n == 6:
+        Q[5, 5] = q55
+    rw = q_pos * q_pos * dt
+    fc = fix_covariance(theta, q_fwd * distance, q_lat * distance)
+    for i in range(2):
+        for j in range(2):
+            Q[i, j] = fc[i, j] + rw * (1.0 if i == j else 0.0)  # + rw * np.eye(2), zeros included
+    Q[2, 2] = q_theta * q_theta * dt
+    Q[3, 3] = q_speed * q_speed * dt
+    Q[4, 4] = q_bias * q_bias * dt
+    return Q
+
+
+@numba.njit(**_JIT)
 def horizontal_sigma(cov: np.ndarray) -> float:
     """types.horizontal_sigma compiled: sqrt of the largest eigenvalue of the 2x2 position block (the same
     LAPACK eigvalsh numpy calls), metres."""
@@ -227,6 +248,7 @@ def warm_up() -> None:
     horizontal_sigma(np.eye(2))
     horizontal_sigma(np.eye(5)[:, :])
     process_noise(0.0, 1.0, 1.0, 0.1, 1.0)
+    process_noise_plus(0.0, 0.1, 1.0, 6, 0.0, 0.1, 0.01, 0.01, 0.002, 0.2, 0.005)
     for n in (3, 5, 6):
         scalar_update(np.zeros(n), np.eye(n), np.eye(n)[2:3].copy(), 0.0, 1.0, -1, 1e-9)
     wrap(0.0)

@@ -73,7 +73,8 @@ class MultiScaleDeformableAttention(nn.Module):
         self.dropout = nn.Dropout(dropout)
         self.batch_first = batch_first
         self.im2col_step = im2col_step
-        self.embed_dims, self.num_levels, self.num_heads, self.num_points = embed_dims, num_levels, num_heads, num_points
+        self.embed_dims, self.num_levels = embed_dims, num_levels
+        self.num_heads, self.num_points = num_heads, num_points
         self.sampling_offsets = nn.Linear(embed_dims, num_heads * num_levels * num_points * 2)
         self.attention_weights = nn.Linear(embed_dims, num_heads * num_levels * num_points)
         value_proj_size = int(embed_dims * value_proj_ratio)

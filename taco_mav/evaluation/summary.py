@@ -173,7 +173,8 @@ ABLATION_LABELS = {"full": "TACO (full)", "no_yaw_gate": "- no yaw-residual gate
                    "isotropic_noise": "- isotropic noise", "no_forward_bias": "- no forward bias",
                    "ukf_only": "- no Pose2 smoother (UKF only)",
                    "no_distance_trigger": "- taco+: no distance trigger (covariance and time only)",
-                   "no_report_calibration": "- taco+: reported accuracy = filter covariance"}
+                   "no_report_calibration": "- taco+: reported accuracy = filter covariance",
+                   "w_weighted_consensus": "- taco+: crop answers averaged by w (not w^2)"}
 
 
 def ablation_md(ablations: dict[str, dict[str, Any]]) -> str:

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
+from taco_mav.core import ukf_kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
 from taco_mav.errors import ConfigError
@@ -112,8 +113,14 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             self._thread.join(timeout)
 
     def _setup(self) -> None:
-        """Open logs, the link, the fix pipeline and the camera motion; request streams; start the timers."""
+        """Compile the filter's kernels, then open logs, the link, the fix pipeline and the camera motion; request
+        streams; start the timers."""
         p, opt = self.profile, self.opt
+        # The first run after an install compiles the UKF kernels (numba; seconds, a minute on a busy machine):
+        # done here, before the link opens, so the loop never stalls on it mid-drive; later runs load the cache.
+        started = time.perf_counter()
+        ukf_kernels.warm_up()
+        log.debug("filter kernels ready in %.1f s", time.perf_counter() - started)
         log_dir = Path(opt.log_dir) if opt.log_dir else None
         if log_dir is not None:
             log_dir.mkdir(parents=True, exist_ok=True)

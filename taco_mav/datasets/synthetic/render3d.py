@@ -5,7 +5,7 @@ the same code runs in CI, on a laptop and on a GPU machine. Each frame is two pa
 the sun into a shadow map (orthographic, around the view), then the colour pass: a sky gradient, the textured
 ground plane, the static meshes, the parked cars of the chosen epoch and the moving cars at time t, lit by
 sun (Lambert, 2x2-PCF shadow-map test) and sky, with procedural facade windows and leaf/plaster noise, and
-distance haze. Frames are read back as uint8 RGB (row 0 at the top).
+distance haze (GLSL in `shaders3d.py`). Frames are read back as uint8 RGB (row 0 at the top).
 
 Frames: meshes and poses are local ENU metres relative to the world centre (float32 on the GPU; UTM metres
 would lose centimetres). Camera: OpenCV pinhole (x right, y down, z forward; pixel centres at integer
@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from taco_mav.camera_geometry import GroundCamera
-from taco_mav.datasets.synthetic.scene3d import CAR_RGB, Mesh, Scene3D, car_mesh, moving_cars_at
+from taco_mav.datasets.synthetic.scene3d import CAR_RGB, Scene3D, car_mesh, moving_cars_at
+from taco_mav.datasets.synthetic.shaders3d import DEPTH_FS, DEPTH_VS, FS, SKY_FS, SKY_VS, VS
 from taco_mav.errors import DataError
 
 log = logging.getLogger(__name__)
@@ -34,83 +35,6 @@ __all__ = ["Lighting", "GlRenderer3D", "camera_matrices", "gl_info"]
 
 CELL_M = 40.0  # culling cell size, metres
 SHADOW_SNAP_M = 20.0  # a camera's shadow map is redrawn when its view centre moves to another 20 m cell
-
-_VS = """#version 330
-uniform mat4 mvp; uniform mat4 light_mvp;
-in vec3 in_pos; in vec3 in_nrm; in vec3 in_col; in float in_mat; in vec2 in_uv;
-out vec3 v_pos; out vec3 v_nrm; out vec3 v_col; flat out int v_mat; out vec2 v_uv;
-void main() {
-  v_pos = in_pos; v_nrm = in_nrm; v_col = in_col; v_mat = int(in_mat + 0.5); v_uv = in_uv;
-  gl_Position = mvp * vec4(in_pos, 1.0);
-}"""
-
-_FS = """#version 330
-in vec3 v_pos; in vec3 v_nrm; in vec3 v_col; flat in int v_mat; in vec2 v_uv;
-uniform sampler2D ground_rgb; uniform sampler2D ground_mat; uniform sampler2DShadow shadow_map;
-uniform mat4 light_mvp; uniform vec4 ground_xf; uniform vec3 ground_fill;
-uniform vec3 sun_dir; uniform vec3 sun_rgb; uniform vec3 sky_rgb; uniform vec3 eye; uniform int ortho;
-uniform float haze_m; uniform vec3 haze_rgb; uniform float haze_mix;
-uniform vec3 grass_tint; uniform vec3 foliage_tint; uniform float exposure;
-out vec4 frag;
-float hash(vec3 p) {  // Hoskins' hash without sine (cheap on a software rasteriser)
-  p = fract(p * 0.1031); p += dot(p, p.zyx + 31.32); return fract((p.x + p.y) * p.z); }
-void main() {
-  vec3 alb = v_col;
-#ifdef GROUND
-  {
-    vec2 uv = vec2((v_pos.x - ground_xf.x) / ground_xf.z, (ground_xf.y - v_pos.y) / ground_xf.w);
-    if (uv.x < 0.0 || uv.x > 1.0 || uv.y < 0.0 || uv.y > 1.0) { alb = ground_fill; }
-    else {
-      alb = texture(ground_rgb, uv).rgb;
-      float m = texture(ground_mat, uv).r * 255.0;
-      alb *= mix(vec3(1.0), grass_tint, m < 0.5 ? 1.0 : (abs(m - 9.0) < 0.5 ? 0.4 : 0.0));  // grass, yards
-    }
-  }
-  vec3 n = vec3(0.0, 0.0, 1.0);
-#else
-  if (v_mat == 1) {
-    vec2 w = v_uv; float fx = fract(w.x / 3.0); float fy = fract(w.y / 3.2);
-    alb *= 0.93 + 0.14 * hash(floor(v_pos * 5.0));
-    if (w.y > 0.9 && fx > 0.28 && fx < 0.72 && fy > 0.3 && fy < 0.8)
-      alb = vec3(0.10, 0.12, 0.15) + 0.12 * hash(vec3(floor(w.x / 3.0), floor(w.y / 3.2), 1.0));
-    if (w.y < 0.35) alb *= 0.6;
-  } else if (v_mat == 2) {
-    alb *= 0.92 + 0.16 * hash(floor(v_pos * 3.0));
-  } else if (v_mat == 8) {
-    vec2 uv = vec2((v_pos.x - ground_xf.x) / ground_xf.z, (ground_xf.y - v_pos.y) / ground_xf.w);
-    frag = vec4(texture(ground_rgb, uv).rgb * sky_rgb * exposure * 0.9, 1.0); return;
-  } else if (v_mat == 3) {
-    alb *= foliage_tint * (0.65 + 0.7 * hash(floor(v_pos * 3.0)));
-  }
-  vec3 n = normalize(v_nrm);
-  vec3 view = ortho == 1 ? vec3(0.0, 0.0, 1.0) : normalize(eye - v_pos);
-  if (dot(n, view) < 0.0) n = -n;
-#endif
-  vec4 lc = light_mvp * vec4(v_pos + n * 0.12, 1.0);
-  vec3 sc = lc.xyz / lc.w * 0.5 + 0.5;
-  float lit = 1.0;
-  if (sc.x > 0.0 && sc.x < 1.0 && sc.y > 0.0 && sc.y < 1.0) lit = texture(shadow_map, vec3(sc.xy, sc.z - 0.0004));
-  float ndl = max(dot(n, sun_dir), 0.0);
-  vec3 light = sky_rgb * (0.75 + 0.25 * n.z) + sun_rgb * ndl * lit;
-  vec3 c = alb * light * exposure;
-  float d = ortho == 1 ? 0.0 : length(eye - v_pos);
-  float a = 1.0 - (1.0 - haze_mix) * exp(-d / haze_m);
-  frag = vec4(mix(c, haze_rgb, a), 1.0);
-}"""
-
-_SKY_VS = """#version 330
-in vec2 in_xy; out float v_y;
-void main() { v_y = in_xy.y; gl_Position = vec4(in_xy, 0.9999, 1.0); }"""
-_SKY_FS = """#version 330
-in float v_y; uniform float horizon_ndc; uniform vec3 zenith; uniform vec3 horizon; out vec4 frag;
-void main() { float a = clamp((v_y - horizon_ndc) / max(1.0 - horizon_ndc, 1e-3), 0.0, 1.0);
-  frag = vec4(mix(horizon, zenith, sqrt(a)), 1.0); }"""
-
-_DEPTH_VS = """#version 330
-uniform mat4 mvp; in vec3 in_pos; void main() { gl_Position = mvp * vec4(in_pos, 1.0); }"""
-_DEPTH_FS = """#version 330
-void main() { }"""
-
 
 @dataclass(frozen=True)
 class Lighting:
@@ -218,10 +142,10 @@ class GlRenderer3D:
         log.debug("GL: %s, %s", ctx.info["GL_RENDERER"], ctx.info["GL_VERSION"])
         # Two variants of one shader (a software rasteriser runs every branch for every fragment): the
         # ground plane's (texture, material tint) and the objects' (facades, foliage, roofs, cars).
-        self.prog = ctx.program(vertex_shader=_VS, fragment_shader=_FS)
-        self.ground_prog = ctx.program(vertex_shader=_VS, fragment_shader=_FS.replace("#version 330", "#version 330\n#define GROUND 1", 1))
-        self.depth_prog = ctx.program(vertex_shader=_DEPTH_VS, fragment_shader=_DEPTH_FS)
-        self.sky_prog = ctx.program(vertex_shader=_SKY_VS, fragment_shader=_SKY_FS)
+        self.prog = ctx.program(vertex_shader=VS, fragment_shader=FS)
+        self.ground_prog = ctx.program(vertex_shader=VS, fragment_shader=FS.replace("#version 330", "#version 330\n#define GROUND 1", 1))
+        self.depth_prog = ctx.program(vertex_shader=DEPTH_VS, fragment_shader=DEPTH_FS)
+        self.sky_prog = ctx.program(vertex_shader=SKY_VS, fragment_shader=SKY_FS)
         self.sky_vao = ctx.vertex_array(self.sky_prog, [(ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], "f4")), "2f", "in_xy")])
         h, w = ground_rgb.shape[:2]
         self.tex = ctx.texture((w, h), 3, np.ascontiguousarray(ground_rgb).tobytes(), alignment=1)
@@ -336,7 +260,7 @@ class GlRenderer3D:
 
     def _draw(self, mvp: np.ndarray, eye: np.ndarray, ortho: bool, light: Lighting, epoch: str,
               t: float | None, view_centre: np.ndarray, reach: float, fbo, horizon_ndc: float | None,
-              ahead: np.ndarray | None = None) -> None:
+              ahead: np.ndarray | None = None, ortho_view: np.ndarray | None = None) -> None:
         import moderngl
 
         ctx = self.ctx
@@ -378,6 +302,7 @@ class GlRenderer3D:
         p["sky_rgb"] = (ambient * 0.95, ambient, ambient * 1.08)
         p["eye"] = tuple(eye)
         p["ortho"] = int(ortho)
+        p["ortho_view"] = tuple(ortho_view) if ortho_view is not None else (0.0, 0.0, 1.0)
         p["haze_m"] = float(light.haze_m)
         p["haze_rgb"] = tuple(light.haze_rgb)
         p["haze_mix"] = float(light.haze_mix)
@@ -446,23 +371,30 @@ class GlRenderer3D:
         cars (None: no moving cars); epoch: which day's parked cars."""
         return self._call(self._camera_job, camera, tuple(float(v) for v in pose), t, epoch, light, depth, far)
 
-    def _ortho_job(self, x0, y1, w, h, res, epoch, t, light):
+    def _ortho_job(self, x0, y1, w, h, res, epoch, t, light, lean):
         xa, xb, yb = x0, x0 + w * res, y1
         ya = y1 - h * res
         zmin, zmax = -1.0, 120.0
         P = np.array([[2 / (xb - xa), 0, 0, -(xb + xa) / (xb - xa)], [0, 2 / (yb - ya), 0, -(yb + ya) / (yb - ya)],
                       [0, 0, -2 / (zmax - zmin), (zmax + zmin) / (zmax - zmin)], [0, 0, 0, 1]])
+        S = np.eye(4)
+        S[0, 2], S[1, 2] = lean  # a point z metres up is drawn lean * z metres away (relief displacement)
+        view = np.array([-lean[0], -lean[1], 1.0]) / math.hypot(lean[0], lean[1], 1.0)
         fbo, resolve = self._fbo(w, h)
         centre = np.array([(xa + xb) / 2, (ya + yb) / 2])
         reach = 0.5 * math.hypot(xb - xa, yb - ya) + 40.0
-        self._draw(P, np.r_[centre, 1e4], True, light, epoch, t, centre, reach, fbo, None)
+        self._draw(P @ S, np.r_[centre, 1e4], True, light, epoch, t, centre, reach, fbo, None, ortho_view=view)
         return self._read(fbo, resolve, w, h, False)[0]
 
     def render_ortho(self, x0: float, y1: float, width: int, height: int, m_per_px: float, epoch: str = "aerial",
-                     t: float | None = None, light: Lighting = Lighting()) -> np.ndarray:
-        """A north-up orthographic view from above: uint8 RGB (height, width, 3) whose top-left pixel corner is
-        at local (x0, y1), `m_per_px` metres per pixel."""
-        return self._call(self._ortho_job, float(x0), float(y1), int(width), int(height), float(m_per_px), epoch, t, light)
+                     t: float | None = None, light: Lighting = Lighting(),
+                     lean: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+        """A north-up parallel view from above: uint8 RGB (height, width, 3) whose top-left pixel corner is at
+        local (x0, y1), `m_per_px` metres per pixel. lean: (east, north) metres per metre of height by which
+        raised points are displaced, as in an orthophoto that is not a true ortho (0: straight down); the
+        ground (z = 0) stays where it is."""
+        return self._call(self._ortho_job, float(x0), float(y1), int(width), int(height), float(m_per_px), epoch, t,
+                          light, (float(lean[0]), float(lean[1])))
 
     def close(self) -> None:
         """Release the GL context and its thread."""

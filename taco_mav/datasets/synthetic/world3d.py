@@ -10,7 +10,9 @@
                    own sun (azimuth 190-240 deg, elevation 28-40 deg, shadows cast by the 3-D objects), season
                    (autumn tint of grass and leaves), parked cars partly moved, moving cars elsewhere; at
                    0.3 m/px (rendered at 0.15 m/px and area-averaged), lightly blurred, with sensor noise and JPEG
-                   compression; and a georeferencing error: a seeded offset of about 1 m in a random direction
+                   compression; raised points lean 0.02-0.06 m per metre of height in a seeded direction (an
+                   orthophoto that is not a true ortho: roofs off their footprints, one side of the facades
+                   seen); and a georeferencing error: a seeded offset of about 1 m in a random direction
                    (world.json "aerial" / "georef_offset_m"): a feature at true local (x, y) appears in the
                    GeoTIFF at (x + dx, y + dy). The drive, IMU and truth are unaffected.
 The camera's day (world.json "camera_light"): sun azimuth 120-170 deg, elevation 45-60 deg, summer.
@@ -50,6 +52,7 @@ GROUND_M_PER_PX = 0.1
 AERIAL_SUPERSAMPLE = 2
 TILE_PX = 1024
 GEOREF_ERROR_M = 1.0
+LEAN = (0.02, 0.06)  # relief displacement of the aerial: metres per metre of height (a 20 m roof: 0.4-1.2 m)
 
 
 def _lot_ground(cv: Canvas, scene: Scene) -> None:
@@ -102,9 +105,10 @@ def lightings(rng: np.random.Generator) -> tuple[Lighting, Lighting]:
 
 
 def render_aerial(gl: GlRenderer3D, x0: float, y1: float, w: int, h: int, res: float, offset: np.ndarray,
-                  light: Lighting, t: float, rng: np.random.Generator) -> np.ndarray:
+                  light: Lighting, t: float, rng: np.random.Generator, lean: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     """The orthophoto (h, w, 3) uint8 whose pixel (c, r) is labelled local (x0 + (c + .5) res, y1 - (r + .5) res)
-    but shows the scene at that point minus `offset` (the georeferencing error)."""
+    but shows the scene at that point minus `offset` (the georeferencing error); raised points lean by
+    `lean` metres per metre of height (see `GlRenderer3D.render_ortho`)."""
     ss = AERIAL_SUPERSAMPLE
     fine = res / ss
     out = np.zeros((h, w, 3), np.uint8)
@@ -113,7 +117,7 @@ def render_aerial(gl: GlRenderer3D, x0: float, y1: float, w: int, h: int, res: f
         for c0 in range(0, w, step):
             th, tw = min(step, h - r0), min(step, w - c0)
             img = gl.render_ortho(x0 + c0 * res - offset[0], y1 - r0 * res - offset[1], tw * ss, th * ss, fine,
-                                  epoch="aerial", t=t, light=light)
+                                  epoch="aerial", t=t, light=light, lean=lean)
             out[r0:r0 + th, c0:c0 + tw] = cv2.resize(img, (tw, th), interpolation=cv2.INTER_AREA)
     out = cv2.GaussianBlur(out, (0, 0), 0.45)
     noisy = out.astype(np.float32) + rng.normal(0.0, 1.8, out.shape).astype(np.float32)
@@ -147,10 +151,13 @@ def build_world3d(out: Path, scene: Scene, extent: tuple[float, float, float, fl
     ang = r_aerial.uniform(0, 2 * np.pi)
     offset = GEOREF_ERROR_M * r_aerial.uniform(0.8, 1.2) * np.array([math.cos(ang), math.sin(ang)])
     t_aerial = float(r_aerial.uniform(1e3, 1e5))
+    lean_ang, lean_k = r_aerial.uniform(0, 2 * np.pi), float(r_aerial.uniform(*LEAN))
+    lean = (lean_k * math.cos(lean_ang), lean_k * math.sin(lean_ang))
+    flown = f"{int(r_aerial.integers(2007, 2011))}-{int(r_aerial.integers(9, 12)):02d}-{int(r_aerial.integers(1, 29)):02d}"
     w, h = int(round((x1 - x0) / AERIAL_M_PER_PX)), int(round((y1 - y0) / AERIAL_M_PER_PX))
     gl = GlRenderer3D(s3, ground, (x0, y1), res_g, mat)
     try:
-        aerial = render_aerial(gl, x0, y1, w, h, AERIAL_M_PER_PX, offset, aer_light, t_aerial, r_aerial)
+        aerial = render_aerial(gl, x0, y1, w, h, AERIAL_M_PER_PX, offset, aer_light, t_aerial, r_aerial, lean)
     finally:
         gl.close()
     transform = Affine(AERIAL_M_PER_PX, 0.0, centre_utm[0] + x0, 0.0, -AERIAL_M_PER_PX, centre_utm[1] + y1)
@@ -160,10 +167,12 @@ def build_world3d(out: Path, scene: Scene, extent: tuple[float, float, float, fl
     return {
         "realism": "3d", "mosaic": "mosaic.tif", "m_per_px": AERIAL_M_PER_PX, "scene3d": "scene3d.npz",
         "ground": "ground.tif", "ground_mat": "ground_mat.tif", "ground_m_per_px": res_g,
-        "camera_light": cam_light.to_dict(),
+        "camera_light": cam_light.to_dict(), "camera_season": "summer",
         "aerial": {"light": aer_light.to_dict(), "m_per_px": AERIAL_M_PER_PX, "moving_cars_t_s": t_aerial,
+                   "date": flown, "season": "autumn",
                    "georef_offset_m": [float(offset[0]), float(offset[1])],
                    "georef_offset_note": "a feature at true local (x, y) appears in mosaic.tif at (x + dx, y + dy)",
+                   "lean_m_per_m": [lean[0], lean[1]],
                    "supersample": AERIAL_SUPERSAMPLE, "jpeg_quality": 85},
     }
 
