@@ -30,11 +30,19 @@ def _probe_writable(folder: Path, option: str, shown: Path) -> None:
         raise UsageError(f"{option} {shown}: cannot write in {folder} ({_why(exc)})") from None
 
 
-def output_dir(path: str | Path, option: str = "--out") -> Path:
-    """`path` as a folder this process can write into, created (with its parents) if absent."""
+def output_dir(path: str | Path, option: str = "--out", create: bool = True) -> Path:
+    """`path` as a folder this process can write into, created (with its parents) if absent; with create False
+    only checked (it exists and is writable, or its nearest existing parent is a writable folder)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise UsageError(f"{option} {path}: exists and is not a folder")
+    if not create:
+        parent = next((p for p in (path, *path.parents) if p.exists()), Path("."))
+        if not parent.is_dir():
+            raise UsageError(f"{option} {path}: cannot create the folder ({parent} is not a folder)")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise UsageError(f"{option} {path}: cannot create the folder ({parent} is not writable)")
+        return path
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import re
 import sys
 import traceback
@@ -125,6 +126,8 @@ def configure_logging(quiet: bool, verbose: int, debug: bool, quiet_by_default: 
     root.addHandler(handler)
     root.setLevel(level)
     logging.captureWarnings(True)  # warnings.warn from libraries goes through the same handler (shown with -v)
+    if not (debug or verbose):  # OpenCV prints its own warnings to stderr (e.g. a camera index it cannot open)
+        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     return handler
 
 

@@ -350,6 +350,37 @@ def test_ctrl_c_in_the_demo_exits_130_and_writes_what_was_played(tmp_path: Path)
     assert (run / "trajectory.png").stat().st_size > 10_000
 
 
+def test_ctrl_c_in_sim_writes_what_was_played_and_exits_130(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """`taco-mav sim` interrupted while playing: the scoring of what was played is written, exit 130."""
+    import taco_mav.sim.run as sim_run
+
+    class Interrupted:
+        def __init__(self, *a: object, **kw: object) -> None:
+            self.stopped = False
+
+        def start(self) -> None:
+            pass
+
+        def join(self, timeout: float | None = None) -> bool:
+            if not self.stopped:
+                raise KeyboardInterrupt
+            return True
+
+        def stop(self) -> None:
+            self.stopped = True
+
+        def results(self) -> dict:
+            return {"sequences": {"d": {"ate_m": 0.5, "gps_input_count": 12}}, "summary": {}, "config": {}}
+
+    monkeypatch.setattr(sim_run, "Simulator", Interrupted)
+    (tmp_path / "drive").mkdir()
+    rc = cli.main(["sim", "-q", "--drive", str(tmp_path / "drive"), "--connect", "udpout:127.0.0.1:9", "--out",
+                   str(tmp_path / "s")])
+    assert rc == 130 and capsys.readouterr().err.strip().splitlines()[-1] == "taco-mav sim: interrupted"
+    assert json.loads((tmp_path / "s" / "results.json").read_text())["sequences"]["d"]["gps_input_count"] == 12
+
+
 # ---------------------------------------------------------------- labels
 
 

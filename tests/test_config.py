@@ -48,6 +48,12 @@ def test_shipped_profiles_load(tmp_path):
     ("colour: red\n", "colour: unknown key"),
     ("- a\n- b\n", "must be a mapping"),
     ("trigger: [1, 2\n", "not valid YAML"),
+    ("camera:\n  position_frd_m: [1.0, 0.2]\n", "camera.position_frd_m: expected a list of 3 values, got 2"),
+    ("camera:\n  position_frd_m: 1.0\n", "camera.position_frd_m: expected a list"),
+    ("camera:\n  position_frd_m: [1.0, x, 0]\n", "camera.position_frd_m[1]: expected a number"),
+    ("camera:\n  position_frd_m: [108, 0, 0]\n", "camera.position_frd_m[0]: 108.0 is out of range"),
+    ("output:\n  antenna_frd_m: [0, 0, 0, 0]\n", "output.antenna_frd_m: expected a list of 3 values, got 4"),
+    ("output:\n  antenna_xyz: [0, 0, 0]\n", "output.antenna_xyz: unknown key"),
 ])
 def test_bad_profiles_name_file_and_key(tmp_path, text, needle):
     f = tmp_path / "bad.yaml"
@@ -70,3 +76,16 @@ def test_round_trip_through_a_dict():
     p = replace_in(Profile(), "ukf.anisotropic", False)
     assert profile_from_dict(profile_to_dict(p)) == p
     assert math.isclose(profile_to_dict(p)["ukf"]["alpha"], 1e-3)
+
+
+def test_lever_arms_load_as_tuples_and_reach_the_localiser(tmp_path):
+    """camera.position_frd_m and output.antenna_frd_m: body FRD lists of three numbers, default zero; the
+    Localiser gets the camera's horizontal lever arm as (forward, left) = (x, -y)."""
+    assert Profile().camera.position_frd_m == (0.0, 0.0, 0.0) and Profile().output.antenna_frd_m == (0.0, 0.0, 0.0)
+    assert localiser_params(Profile()).camera_lever_fwd_left_m == (0.0, 0.0)
+    f = tmp_path / "rover.yaml"
+    f.write_text("camera:\n  position_frd_m: [0.8, -0.1, -0.6]\noutput:\n  antenna_frd_m: [-0.2, 0, -0.4]\n")
+    p = load_profile(f)
+    assert p.camera.position_frd_m == (0.8, -0.1, -0.6) and p.output.antenna_frd_m == (-0.2, 0.0, -0.4)
+    assert localiser_params(p).camera_lever_fwd_left_m == (0.8, 0.1)
+    assert profile_from_dict(profile_to_dict(p)) == p  # lists in the resolved config, tuples again on load

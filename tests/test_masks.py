@@ -13,6 +13,7 @@ from rasterio.transform import from_origin
 from taco_mav.bench.classical import NORTH, WEST, textured_mosaic
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
+from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
 from taco_mav.cvgl.gap import FrameGap, occlude_frame
 from taco_mav.cvgl.ipm import BevProjector
@@ -63,8 +64,6 @@ def test_the_matcher_keeps_masked_pixels_out_of_its_template(scene) -> None:
     cam, frames = scene
     matcher = ClassicalMatcher(ClassicalMatcherConfig(), cam)
     crop_rgb = cv2.resize(frames[0], (200, 200))  # any square RGB crop: only the mask bookkeeping is asserted
-    from taco_mav.cvgl.base import Crop, GroundFrame
-
     crop = Crop(crop_rgb, np.zeros(2), 0.0, 0.6)
     matcher.match(GroundFrame(frames[0], 0.0, cam), [crop])
     assert matcher.last_mask_fraction == 1.0

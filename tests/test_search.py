@@ -56,3 +56,23 @@ def test_best_candidate_is_the_largest_weight():
     assert best_candidate(rs) == 1
     with pytest.raises(ValueError):
         best_candidate([])
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 30.0, 90.0, 180.0, -135.0])
+def test_fix_position_takes_the_camera_lever_arm_off(heading_deg):
+    """The matcher's t is the camera's position; with the camera 1.08 m ahead of and 0.25 m right of the reference
+    point (FRD [1.08, 0.25, z] -> (forward, left) (1.08, -0.25)) the fix is the reference point, at any heading."""
+    th = math.radians(heading_deg)
+    ref = np.array([500.0, -20.0])
+    lever = np.array([1.08, -0.25])
+    camera = ref + body_to_world(th, lever)  # where the camera truly is
+    centre = ref + body_to_world(th, np.array([4.0, 2.0]))  # a crop 4 m ahead, 2 m left of the vehicle
+    c, s = math.cos(th), math.sin(th)
+    d = camera - centre
+    t = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])  # the camera in the heading-up crop
+    assert fix_position(centre, th, t, lever) == pytest.approx(ref, abs=1e-12)
+    assert fix_position(centre, th, t) == pytest.approx(camera, abs=1e-12)  # no lever arm: the camera's position
+    assert np.linalg.norm(fix_position(centre, th, t) - ref) == pytest.approx(math.hypot(1.08, 0.25))
+    # east heading, numbers by hand: the camera is 1.08 m east and 0.25 m south of the reference point
+    assert fix_position([0.0, 0.0], 0.0, [1.08, -0.25], lever) == pytest.approx([0.0, 0.0])
+    assert fix_position([0.0, 0.0], math.pi / 2, [0.0, 0.0], lever) == pytest.approx([-0.25, -1.08])

@@ -214,6 +214,9 @@ def test_camera_frame_differs_from_an_ipm_of_the_mosaic(world3d: Path) -> None:
             nccs.append(_ncc(g3, gf))
             m = ground & (fwd < 60.0)
             hidden.append(float(np.mean(depth[m] < 0.95 * fwd[m])))
+            valid = r.ipm_valid(pose, t, 60.0)
+            assert not valid[: int(cam.K[1, 2])].any()  # nothing above the horizon is ground
+            assert np.mean(~valid[m]) == pytest.approx(hidden[-1], abs=0.02)
     finally:
         r.close()
     assert 0.0 < np.median(nccs) < 0.8, nccs

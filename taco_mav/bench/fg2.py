@@ -11,7 +11,7 @@ Keys:
 - `fg2_crop_ms`: median time per crop, trigger time / 5 (what MatchResult.elapsed_s reports);
 - `fg2_peak_gb`: on CUDA, torch.cuda.max_memory_allocated over model build and all triggers (weights included),
   GiB; on a CPU, the growth of the process's peak resident memory (ru_maxrss) from before the model was built
-  (weights included), GiB; `fg2_peak_source` says which.
+  (weights and the build's transient copies included), GiB; `fg2_peak_source` says which.
 Also `fg2_device`, `fg2_triggers`, `fg2_fast`, `fg2_compile`, `fg2_random_weights`.
 """
 

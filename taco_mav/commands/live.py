@@ -66,6 +66,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     estimator = Estimator(args.estimator) if args.estimator else profile.estimator
     signing = key_file(args.signing_key) if args.signing_key else None
     check_camera_and_map(args, profile.matcher)
+    if args.log_dir:
+        checks.output_dir(args.log_dir, "--log-dir", create=False)
     from taco_mav.link.daemon import Daemon, DaemonOptions  # the heavy import, after every check
 
     log_dir = None

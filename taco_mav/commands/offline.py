@@ -79,6 +79,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
     if args.drive and args.sequences:
         raise UsageError("give either --sequences (with --kitti-root) or --drive, not both")
+    checks.fresh_folder(checks.output_dir(args.out, create=False), "results.json", args.force)
     from taco_mav.evaluation.evaluate import ABLATIONS, EvalRequest, evaluate, resolve_profile
 
     ablations: tuple[str, ...] = ()

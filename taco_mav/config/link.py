@@ -60,3 +60,10 @@ class OutputConfig:
     statustext_interval_s: float = field(default=5.0, metadata=bounded(0.0))  # rate limit of fix STATUSTEXTs
     # GLOBAL_POSITION_SENSOR target (PX4): 0 = the autopilot's sysid / broadcast component.
     gps_sensor_id: int = field(default=0, metadata=bounded(0, 255))
+    # The point whose position the autopilot expects, relative to the vehicle reference point (the estimate's
+    # point; camera.position_frd_m is measured from the same one), body FRD metres [x forward, y right, z down].
+    # ArduPilot GPS_INPUT: the antenna of instance gps_id + 1, i.e. copy GPS{n}_POS_X/Y/Z (GPS_POS{n}_X/Y/Z before
+    # 4.6; the daemon reads them and warns on a difference over 5 cm). PX4: see docs/px4.md (GLOBAL_POSITION_SENSOR
+    # takes the body origin itself: leave zero; ODOMETRY: EKF2_EV_POS_X/Y/Z). Sent position = estimate +
+    # R(heading) [x, -y] (forward, left); altitude = origin altitude - z.
+    antenna_frd_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=bounded(-20.0, 20.0))

@@ -70,8 +70,12 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
-        (elem, _ellipsis) = typing.get_args(tp)
-        return tuple(_convert(v, elem, f"{where}[{i}]") for i, v in enumerate(value))
+        args = typing.get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:  # tuple[X, ...]: any length
+            return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):  # tuple[X, Y, Z]: exactly that many
+            raise ConfigError(f"{where}: expected a list of {len(args)} values, got {len(value)}")
+        return tuple(_convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
     if tp is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: expected true/false, got {value!r}")
@@ -105,11 +109,14 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
             raise ConfigError(f"{key_where}: unknown key (known: {known})")
         converted = _convert(value, hints[key], key_where)
         lo, hi, open_lo = fields[key].metadata.get("range", (None, None, False))
-        if isinstance(converted, (int, float)) and not isinstance(converted, bool):
-            if lo is not None and (converted < lo or (open_lo and converted == lo)):
-                raise ConfigError(f"{key_where}: {converted} is out of range (must be {'>' if open_lo else '>='} {lo})")
-            if hi is not None and converted > hi:
-                raise ConfigError(f"{key_where}: {converted} is out of range (must be <= {hi})")
+        items = enumerate(converted) if isinstance(converted, tuple) else [(None, converted)]
+        for i, number in items:  # a range applies to a number, or to each number of a tuple
+            if isinstance(number, (int, float)) and not isinstance(number, bool):
+                at = key_where if i is None else f"{key_where}[{i}]"
+                if lo is not None and (number < lo or (open_lo and number == lo)):
+                    raise ConfigError(f"{at}: {number} is out of range (must be {'>' if open_lo else '>='} {lo})")
+                if hi is not None and number > hi:
+                    raise ConfigError(f"{at}: {number} is out of range (must be <= {hi})")
         kwargs[key] = converted
     return cls(**kwargs)
 

@@ -92,7 +92,8 @@ class PlusConfig:
     fix_scale_window: int = field(default=10, metadata=bounded(1))
     # Reported accuracy (issue 18): the filter's position covariance times the a-posteriori variance factor of the
     # accepted fixes (mean NIS / 2 over report_window fixes, clipped to [report_factor_min, report_factor_max]).
-    # The filter keeps its process-noise margin (it tracks better with it); what it reports is made honest.
+    # The filter keeps its process-noise margin (it tracks better with it); what it reports is made honest (while
+    # locked and while the safety guard agrees; otherwise the filter's own covariance is reported).
     report_calibration: bool = True
     report_window: int = field(default=20, metadata=bounded(1))
     report_factor_min: float = field(default=0.1, metadata=bounded(0.0, open_lo=True))

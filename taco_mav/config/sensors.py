@@ -26,6 +26,12 @@ class CameraConfig:
     # by `taco-mav calibrate`). With it frames are undistorted before the matcher and fx, fy, cx, cy, width_px,
     # height_px become that undistorted pinhole model (docs/camera.md); "" = frames are already pinhole.
     calibration: str = ""
+    # Lever arm: the camera's optical centre relative to the vehicle reference point (the autopilot's body origin,
+    # where its IMU and EKF sit; in KITTI the OXTS unit), body FRD metres [x forward, y right, z down]. Every
+    # matcher localises the CAMERA; core/search.py fix_position moves each fix back to the reference point by this
+    # offset rotated by the heading (z is not used: flat ground). Measure it on the vehicle (docs/camera.md);
+    # KITTI image_02: [1.080, 0.250, -0.729] from the dataset's calibration (datasets/kitti_io.py).
+    position_frd_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=bounded(-20.0, 20.0))
 
 
 @dataclass(frozen=True)

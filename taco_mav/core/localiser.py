@@ -253,7 +253,7 @@ class Localiser(GnssFusion):
         k = best_candidate([r if r is not None else _NO_MATCH for r in results])
         best = results[k]
         assert best is not None
-        xy = fix_position(q.crop_centres[k], q.heading, best.t)
+        xy = fix_position(q.crop_centres[k], q.heading, best.t, self.p.camera_lever_fwd_left_m)
         psi = yaw_residual(best.R)
         if not (np.all(np.isfinite(xy)) and math.isfinite(psi) and math.isfinite(best.w) and best.w > 0):
             return self._log(FixOutcome(query_id, False, "nonfinite", q.capture_t, now, k, weights=weights))

@@ -235,7 +235,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         psi = np.full(len(results), np.nan)
         for k, r in enumerate(results):
             if r is not None:
-                xy[k] = fix_position(q.crop_centres[k], q.heading, r.t)
+                xy[k] = fix_position(q.crop_centres[k], q.heading, r.t, p.camera_lever_fwd_left_m)
                 psi[k] = yaw_residual(r.R)
         w = np.array(weights)
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
@@ -332,7 +332,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
     def estimate(self) -> Estimate:
         est = super().estimate()
         x = self.ukf.x
-        if self.q.report_calibration:
+        # The fixes' variance factor makes the reported accuracy honest while locked and while the safety guard
+        # agrees; otherwise the filter's own (widened) covariance is reported as it is (issue 18).
+        if self.q.report_calibration and self.lock.state is LockState.LOCKED and not self._guard_flagged:
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
         lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
         if lo < self._report_floor_m**2:

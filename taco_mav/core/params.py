@@ -28,6 +28,9 @@ class LocaliserParams:
     forward_bias_k: float = 0.4
     forward_bias_cap_m: float = 15.0
     multi_crop: bool = True
+    # the camera's position relative to the vehicle reference point, body (forward, left) metres: the lever arm
+    # that fix_position takes off every matcher answer (profile camera.position_frd_m; zero = camera at the point)
+    camera_lever_fwd_left_m: tuple[float, float] = (0.0, 0.0)
     search_cross_k: float = 0.5
     cross_cap_m: float = 10.0
     query_timeout_s: float = 5.0

@@ -9,10 +9,13 @@
   accepted fixes say the matcher's real accuracy is.
 - A covariance trigger: ask for a fix when the filter's own 1-sigma horizontal uncertainty reaches
   `trigger_sigma_m` (or `trigger_time_s` passed while moving); the search cross is centred on the current
-  estimate (no forward bias: our UKF is predicted to the capture time) and sized by that uncertainty.
+  estimate (no forward bias: our UKF is predicted to the capture time) and sized by that uncertainty;
+  optionally also every `trigger_distance_m` driven since the last accepted fix (issue 18).
 - Consensus over the candidates instead of argmax w, and a chi-square innovation gate beside the yaw gate
   (tighter for an answer no other crop agrees with).
 - A hexagonal grid search, sized by the uncertainty, while lock is lost (`lock.py`).
+- The reported accuracy (`VarianceFactor`, issue 18): the filter's covariance times the a-posteriori
+  variance factor of the accepted fixes, so the h_acc sent covers the error as a 1-sigma should.
 
 All lengths metres, angles radians, times seconds; body offsets (forward, left); world ENU.
 """
@@ -152,10 +155,12 @@ class Consensus:
     weight: float
 
 
-def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float, power: float = 1.0) -> Consensus | None:
+def consensus(xy: np.ndarray, w: np.ndarray, usable: np.ndarray, radius_m: float,
+              power: float = 1.0) -> Consensus | None:
     """Pick the cluster of usable candidates (world positions `xy` (K, 2), weights `w` (K,)) with the largest
-    summed weight, members within `radius_m` of its seed; None when nothing is usable. The cluster mean is
-    reported with the best member's weight: nearby crops of one frame are not independent evidence."""
+    summed weight, members within `radius_m` of its seed; None when nothing is usable. The cluster mean weights
+    each member by w^power (1: by w; 2: inverse variance under sigma ~ 1/w) and is reported with the best
+    member's weight: nearby crops of one frame are not independent evidence."""
     idx = np.flatnonzero(usable)
     if idx.size == 0:
         return None

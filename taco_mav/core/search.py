@@ -62,10 +62,15 @@ def search_centres(xy: np.ndarray, heading: float, bias_m: float, offsets: np.nd
     return centre, centre + body_to_world(heading, offsets)
 
 
-def fix_position(crop_centre: np.ndarray, heading: float, t_fwd_left: np.ndarray) -> np.ndarray:
-    """World position of a fix, ENU metres: the crop centre plus the matcher's (forward, left) answer rotated
-    by the crop's heading. The only conversion from a crop-frame answer to the world."""
-    return np.asarray(crop_centre, dtype=float) + body_to_world(heading, np.asarray(t_fwd_left, dtype=float))
+def fix_position(crop_centre: np.ndarray, heading: float, t_fwd_left: np.ndarray,
+                 lever_fwd_left: np.ndarray | tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """World position of a fix, ENU metres: the VEHICLE REFERENCE POINT. The matcher's (forward, left) answer t
+    is the camera's ground position in the heading-up crop (cvgl/base.py); lever_fwd_left is the camera's offset
+    from the reference point, body (forward, left) metres (profile camera.position_frd_m [x, y] as (x, -y)). So
+    fix = crop centre + R(heading) (t - lever), heading the crop's (ENU rad). The only conversion from a
+    crop-frame answer to the world, for every matcher."""
+    t = np.asarray(t_fwd_left, dtype=float) - np.asarray(lever_fwd_left, dtype=float)
+    return np.asarray(crop_centre, dtype=float) + body_to_world(heading, t)
 
 
 def best_candidate(results: Sequence[MatchResult]) -> int:

@@ -5,11 +5,14 @@ position and rotated heading-up (the query heading theta points to image-up; h_i
 matcher gets the one ground frame and the K crops and returns K `MatchResult`s in the same order:
 
 - R: 2x2 residual rotation of the matcher's heading against the query heading (CCW positive);
-- t: the vehicle's position relative to the crop centre, metres, as (forward, left) in the heading-up crop
-  (forward = image up, left = image left);
+- t: the CAMERA's ground position (the point below its optical centre) relative to the crop centre, metres, as
+  (forward, left) in the heading-up crop (forward = image up, left = image left). What a matcher sees is the
+  camera; the vehicle reference point is elsewhere (profile camera.position_frd_m, the lever arm), and
+  `fix_position` alone takes the lever arm off;
 - w: match weight in (0, 1]; higher is more confident.
 
-`taco_mav.core.search.fix_position` turns (crop centre, heading, t) into a world fix; nothing else does.
+`taco_mav.core.search.fix_position` turns (crop centre, heading, t, lever arm) into a world fix of the vehicle
+reference point; nothing else does.
 """
 
 from __future__ import annotations

@@ -22,6 +22,9 @@ Model (all parameters in `EmulatorConfig`; docs/matchers.md has the reasoning):
     radius), w ~ U(0.3, 0.8): the gate cannot catch it.
   The published median/mean describe the nominal outcome; the failure modes come on top (with the default
   rates they raise the same-area mean by about 0.5 m).
+- lever arm: FG2 localises the camera, so the emulator answers with the CAMERA's true position (truth + the
+  camera's (forward, left) offset from the reference point rotated by the true heading, `lever_fwd_left`) plus
+  its noise; the capture radius is measured from the camera too. The Localiser takes the same lever arm off.
 - determinism: each (frame, crop) draw uses its own numpy Generator seeded from (seed, round(t * 1000),
   crop index), so results depend only on the seed and the query, never on call order.
 """
@@ -114,12 +117,14 @@ def draw(rng: np.random.Generator, cfg: EmulatorConfig, t_true: np.ndarray, psi_
 
 class EmulatorMatcher:
     """Matcher-shaped FG2 statistics (see the module docstring). truth(t) -> (E, N, theta): the true absolute
-    UTM metres and ENU heading (rad) at time t. cross_area selects FG2's cross-area error figures. seed
-    overrides cfg.seed."""
+    UTM metres and ENU heading (rad) at time t of the vehicle reference point. cross_area selects FG2's
+    cross-area error figures. seed overrides cfg.seed. lever_fwd_left: the camera's offset from the reference
+    point, body (forward, left) metres (profile camera.position_frd_m as (x, -y))."""
 
     name = "emulator"
 
-    def __init__(self, cfg: EmulatorConfig, truth: TruthFn, cross_area: bool = False, seed: int | None = None) -> None:
+    def __init__(self, cfg: EmulatorConfig, truth: TruthFn, cross_area: bool = False, seed: int | None = None,
+                 lever_fwd_left: tuple[float, float] = (0.0, 0.0)) -> None:
         lognormal_params(cfg.median_error_m, cfg.mean_error_m)
         lognormal_params(cfg.cross_area_median_error_m, cfg.cross_area_mean_error_m)
         if cfg.symmetric_lock_rate + cfg.silent_outlier_rate > 1.0:
@@ -128,12 +133,15 @@ class EmulatorMatcher:
         self.truth = truth
         self.cross_area = cross_area
         self.seed = cfg.seed if seed is None else int(seed)
+        self.lever = (float(lever_fwd_left[0]), float(lever_fwd_left[1]))
         self.last_draws: list[Draw] = []  # the draws behind the last match() (for diagnostics and tests)
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         """One MatchResult per crop; frame.image is ignored (may be empty)."""
         start = time.perf_counter()
         E, N, theta = self.truth(frame.t)
+        (lf, ll), c0, s0 = self.lever, math.cos(theta), math.sin(theta)
+        E, N = E + c0 * lf - s0 * ll, N + s0 * lf + c0 * ll  # the camera's true ground position
         draws: list[Draw] = []
         for i, crop in enumerate(crops):
             d = np.array([E - crop.centre_utm[0], N - crop.centre_utm[1]])

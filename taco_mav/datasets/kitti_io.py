@@ -1,4 +1,5 @@
-"""Strict readers for KITTI raw files: timestamps.txt, oxts/data/*.txt, calib_cam_to_cam.txt, world.json.
+"""Strict readers for KITTI raw files: timestamps.txt, oxts/data/*.txt, calib_*.txt, world.json; the camera's
+lever arm from the calibration chain (`camera_position_frd_m`).
 
 Each reader refuses what it cannot read with a DataError naming the file and, where there is one, the
 1-based line number; nothing is silently truncated or skipped. Units are KITTI's own (see `OXTS_FIELDS`).
@@ -115,6 +116,38 @@ def calib_numbers(calib: dict[str, str], key: str, count: int, path: Path) -> np
     if len(values) != count or not np.all(np.isfinite(values)):
         raise DataError(f"{path}: key {key}: expected {count} finite numbers, found {len(values)}")
     return values
+
+
+def _rigid(folder: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), T (3,)) of a KITTI rigid calibration file (x_to = R x_from + T, metres)."""
+    path = folder / name
+    calib = read_calib(path)
+    return calib_numbers(calib, "R", 9, path).reshape(3, 3), calib_numbers(calib, "T", 3, path)
+
+
+def camera_position_frd_m(calib_dir: Path, camera: str = "02") -> np.ndarray:
+    """The rectified camera `camera`'s optical centre in the OXTS/IMU frame, body FRD metres, shape (3,): the
+    profile's camera.position_frd_m (lever arm) for KITTI, from the date folder's own calibration.
+
+    Chain (KITTI raw devkit): x_velo = R x_imu + T (calib_imu_to_velo.txt), x_cam0 = R x_velo + T
+    (calib_velo_to_cam.txt), x_rect0 = R_rect_00 x_cam0 and image = P_rect_<camera> [x_rect0; 1]
+    (calib_cam_to_cam.txt). The camera centre C solves P [C; 1] = 0: C = -P[:, :3]^-1 P[:, 3] in rectified
+    cam-0 coordinates; it is carried back to the IMU frame, which KITTI gives as FLU (x forward, y left, z up),
+    and returned as FRD [x, -y, -z]. 2011_09_26, image_02: FLU [1.080, -0.250, 0.729]."""
+    R_iv, T_iv = _rigid(calib_dir, "calib_imu_to_velo.txt")
+    R_vc, T_vc = _rigid(calib_dir, "calib_velo_to_cam.txt")
+    path = calib_dir / "calib_cam_to_cam.txt"
+    calib = read_calib(path)
+    R_rect = calib_numbers(calib, "R_rect_00", 9, path).reshape(3, 3)
+    P = calib_numbers(calib, f"P_rect_{camera}", 12, path).reshape(3, 4)
+    try:
+        centre_rect0 = -np.linalg.solve(P[:, :3], P[:, 3])
+    except np.linalg.LinAlgError:
+        raise DataError(f"{path}: P_rect_{camera} is singular: not a camera") from None
+    x_cam0 = R_rect.T @ centre_rect0
+    x_velo = R_vc.T @ (x_cam0 - T_vc)
+    flu = R_iv.T @ (x_velo - T_iv)
+    return np.array([flu[0], -flu[1], -flu[2]])
 
 
 def _names_drive(value: Any, drive_name: str) -> bool:

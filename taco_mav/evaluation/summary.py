@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.evaluation.metrics import coverage, h_acc_from_var, path_length_m, position_errors, rmse, steady_state_rmse
+from taco_mav.evaluation.metrics import (coverage, h_acc_from_var, path_length_m, position_errors, rmse,
+                                         steady_state_rmse)
 from taco_mav.evaluation.runner import DriveRun
 
 REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")

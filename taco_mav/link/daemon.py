@@ -149,7 +149,8 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             rates["RAW_IMU"] = p.link.imu_rate_hz
         rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         self.requester = StreamRequester(self.link.send, self.link.mav, rates) if p.link.request_rates else None
-        self.params_check = ParamCheck(self.link.send, self.link.mav, p.output.gps_id) if p.link.check_params and \
+        self.params_check = ParamCheck(self.link.send, self.link.mav, p.output.gps_id,
+                                       antenna_frd_m=p.output.antenna_frd_m) if p.link.check_params and \
             "gps_input" in p.output.messages else None
         self.gnss = GnssTracker(p.output.gps_id, "gps_input" in p.output.messages, p.output.hdop_uere_m,
                                 self.params_check.types if self.params_check is not None else None)

@@ -89,9 +89,12 @@ class DaemonInputs:
             self.requester.on_message(msg, link.target_system, link.target_component)
         elif kind == "PARAM_VALUE" and self.params_check is not None:
             warning = self.params_check.on_message(msg)
-            if warning:
-                self._status(SEV_ERROR, warning, key=None)
-                self.events.write("param_check", warning=warning)
+            if warning:  # GPSn_TYPE not 14: an error; an antenna offset unlike the profile's: a warning
+                antenna = warning == self.params_check.antenna_warning
+                self._status(SEV_WARNING if antenna else SEV_ERROR, warning, key=None)
+                extra = ({"autopilot_antenna_m": self.params_check.antenna,
+                          "antenna_frd_m": list(self.profile.output.antenna_frd_m)} if antenna else {})
+                self.events.write("param_check", warning=warning, **extra)
 
     def _on_imu(self: Daemon, msg: Any, received: float) -> None:
         """An IMU message: the chosen stream's valid sample, checked against the autopilot timeline (reboots, gaps,

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from taco_mav.config import OutputConfig
+from taco_mav.core.search import body_to_world
 from taco_mav.core.types import Estimate
 from taco_mav.geo import UtmProjector, gps_week_ms, utm_epsg_for
 
@@ -93,12 +94,25 @@ def _f(value: float, fallback: float) -> float:
     return float(value) if math.isfinite(value) else float(fallback)
 
 
+def antenna_point(xy: np.ndarray, theta: float, antenna_frd_m: tuple[float, float, float]) -> np.ndarray:
+    """The autopilot's antenna point, ENU metres: the estimate's reference point `xy` plus the antenna's body
+    offset (FRD [x forward, y right, z down] metres; horizontal part (x, -y) as (forward, left)) rotated by the
+    grid heading theta (ENU rad)."""
+    return np.asarray(xy, dtype=float) + body_to_world(theta, np.array([antenna_frd_m[0], -antenna_frd_m[1]]))
+
+
 def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) -> NavSolution:
     """Build a NavSolution from an estimate; any non-finite part makes the solution unhealthy (fix_type 1) with
-    the origin's position and a 1 km accuracy, so nothing non-finite is ever encoded."""
-    xy = np.asarray(est.xy, dtype=float)
+    the origin's position and a 1 km accuracy, so nothing non-finite is ever encoded.
+
+    The estimate is the vehicle reference point; the solution is the point the autopilot expects,
+    cfg.antenna_frd_m from it (`antenna_point`; altitude = origin altitude - z): the one place where every output
+    (GPS_INPUT, GLOBAL_POSITION_SENSOR, ODOMETRY) gets its position."""
     sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
+    xy = np.asarray(est.xy, dtype=float)
     ok = bool(np.all(np.isfinite(xy)) and math.isfinite(sigma) and math.isfinite(est.theta) and math.isfinite(est.speed))
+    if ok:
+        xy = antenna_point(xy, float(est.theta), cfg.antenna_frd_m)
     if ok:
         try:
             lat, lon = origin.latlon(xy)
@@ -113,7 +127,8 @@ def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) ->
     cov = np.asarray(est.cov_xy, dtype=float) if ok else np.diag([sigma**2, sigma**2])
     cov_ne = np.array([[cov[1, 1], cov[0, 1]], [cov[0, 1], cov[0, 0]]])
     speed_acc = max(cfg.speed_accuracy_floor_mps, cfg.speed_accuracy_fraction * abs(speed))
-    return NavSolution(_f(est.t, 0.0), lat, lon, origin.alt, float(xy[1]), float(xy[0]), vn, ve, speed, yaw,
+    alt = origin.alt - float(cfg.antenna_frd_m[2])
+    return NavSolution(_f(est.t, 0.0), lat, lon, alt, float(xy[1]), float(xy[0]), vn, ve, speed, yaw,
                        float(sigma), cov_ne, speed_acc, GPS_FIX_3D if (ok and healthy) else GPS_FIX_NONE)
 
 

@@ -150,13 +150,22 @@ class MessageRequest:
 GPS_TYPE_PARAMS = {"GPS1_TYPE": 1, "GPS2_TYPE": 2, "GPS_TYPE": 1, "GPS_TYPE2": 2}
 
 
+# Antenna offsets differing from output.antenna_frd_m by more than this (metres, any axis) are warned about.
+ANTENNA_TOLERANCE_M = 0.05
+
+
 @dataclass
 class ParamCheck:
     """Read the GPS type of both instances once (GPS1_TYPE / GPS2_TYPE, or GPS_TYPE / GPS_TYPE2 on firmware
     before 4.6; the autopilot answers the names it has). `gps_id` is the profile's output.gps_id: our
     GPS_INPUT goes to instance gps_id + 1, whose type must be 14 (MAV), else `warnings` says so.
     `types`: instance -> GPSn_TYPE as answered; `value` / `answered_by`: our instance's type and the parameter
-    that gave it (None until answered)."""
+    that gave it (None until answered).
+
+    With `antenna_frd_m` (the profile's output.antenna_frd_m, body FRD metres) it also reads our instance's
+    antenna offset, GPS{n}_POS_X/Y/Z (GPS_POS{n}_X/Y/Z before 4.6): EKF3 takes GPS_INPUT as the position of that
+    point, so a profile that sends another point is warned about (`antenna_warning`) when any axis differs by more
+    than ANTENNA_TOLERANCE_M. `antenna`: axis ("X", "Y", "Z") -> metres as answered."""
 
     send: Callable[[Any], None]
     mav: Any
@@ -164,10 +173,13 @@ class ParamCheck:
     names: tuple[str, ...] = ("GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2")
     retry_s: float = 2.0
     tries: int = 3
+    antenna_frd_m: tuple[float, float, float] | None = None
     value: float | None = None
     answered_by: str | None = None
     types: dict[int, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    antenna: dict[str, float] = field(default_factory=dict)
+    antenna_warning: str | None = None
     _tries: int = 0
     _next: float = 0.0
 
@@ -177,9 +189,19 @@ class ParamCheck:
         return self.gps_id + 1
 
     @property
+    def antenna_names(self) -> dict[str, str]:
+        """Parameter name -> axis of our instance's antenna offset (4.6 and later, then older firmware); empty
+        without antenna_frd_m."""
+        if self.antenna_frd_m is None:
+            return {}
+        n = self.instance
+        return {**{f"GPS{n}_POS_{a}": a for a in "XYZ"}, **{f"GPS_POS{n}_{a}": a for a in "XYZ"}}
+
+    @property
     def done(self) -> bool:
         wanted = {GPS_TYPE_PARAMS[n] for n in self.names if n in GPS_TYPE_PARAMS}
-        return wanted <= set(self.types) or self._tries >= self.tries
+        antenna_known = self.antenna_frd_m is None or len(self.antenna) == 3
+        return (wanted <= set(self.types) and antenna_known) or self._tries >= self.tries
 
     def tick(self, now: float, target_system: int, target_component: int) -> None:
         if self.done or now < self._next or not target_system:
@@ -189,9 +211,40 @@ class ParamCheck:
         for name in self.names:
             if GPS_TYPE_PARAMS.get(name) not in self.types:
                 self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
+        for name, axis in self.antenna_names.items():
+            if axis not in self.antenna:
+                self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
         if self._tries >= self.tries and self.value is None:
             log.warning("no answer to PARAM_REQUEST_READ GPS%d_TYPE: cannot check that the autopilot takes GPS_INPUT "
                         "(set GPS%d_TYPE=14 on ArduPilot)", self.instance, self.instance)
+        if self._tries >= self.tries and self.antenna_frd_m is not None and len(self.antenna) < 3:
+            log.info("no answer to PARAM_REQUEST_READ GPS%d_POS_X/Y/Z: the antenna offset is not checked against "
+                     "output.antenna_frd_m", self.instance)
+
+    def _on_antenna(self, pid: str, value: float) -> str | None:
+        """One antenna-offset parameter; once all three axes are known, the warning text when they differ from
+        output.antenna_frd_m by more than ANTENNA_TOLERANCE_M (else None)."""
+        axis = self.antenna_names[pid]
+        if axis in self.antenna or self.antenna_frd_m is None:
+            return None
+        self.antenna[axis] = value
+        log.info("%s=%.3f m (GPS%d antenna)", pid, value, self.instance)
+        if len(self.antenna) < 3:
+            return None
+        ap = (self.antenna["X"], self.antenna["Y"], self.antenna["Z"])
+        ours = tuple(float(v) for v in self.antenna_frd_m)
+        diff = max(abs(a - b) for a, b in zip(ap, ours))
+        if diff <= ANTENNA_TOLERANCE_M:
+            log.info("GPS%d antenna offset matches output.antenna_frd_m", self.instance)
+            return None
+        stem = pid[:-2]  # GPS1_POS or GPS_POS1
+        text = (f"antenna off {diff:.2f} m: {stem}_X/Y/Z={ap[0]:.2f},{ap[1]:.2f},{ap[2]:.2f} but "
+                f"output.antenna_frd_m={ours[0]:.2f},{ours[1]:.2f},{ours[2]:.2f}: the position sent is not the point "
+                f"the autopilot expects (copy {stem}_X/Y/Z into the profile)")
+        self.antenna_warning = text
+        self.warnings.append(text)
+        log.warning("%s", text)
+        return text
 
     def is_mav(self, instance: int) -> bool | None:
         """True when GPS instance `instance` (1-based) is of type 14 (fed by GPS_INPUT), None while unknown."""
@@ -199,20 +252,24 @@ class ParamCheck:
         return None if t is None else t == GPS_TYPE_MAV
 
     def on_message(self, msg: Any) -> str | None:
-        """Consume PARAM_VALUE; returns a warning text when our instance's type is not 14."""
+        """Consume PARAM_VALUE; returns a warning text when our instance's type is not 14, or when its antenna
+        offset differs from output.antenna_frd_m (`antenna_warning`)."""
         if msg.get_type() != "PARAM_VALUE":
             return None
         pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else str(msg.param_id)
         pid = pid.rstrip("\x00")
-        if pid not in self.names or pid not in GPS_TYPE_PARAMS:
+        antenna = pid in self.antenna_names
+        if not antenna and (pid not in self.names or pid not in GPS_TYPE_PARAMS):
             return None
-        instance = GPS_TYPE_PARAMS[pid]
-        if instance in self.types:
+        instance = GPS_TYPE_PARAMS.get(pid, self.instance)
+        if not antenna and instance in self.types:
             return None
         value = float(msg.param_value)
         if not math.isfinite(value):  # a corrupt answer: keep asking
             log.warning("PARAM_VALUE %s is not finite (%r): ignored", pid, value)
             return None
+        if antenna:
+            return self._on_antenna(pid, value)
         self.types[instance] = int(round(value))
         log.info("%s=%d (GPS%d)", pid, self.types[instance], instance)
         if instance != self.instance:

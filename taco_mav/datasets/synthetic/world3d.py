@@ -215,6 +215,14 @@ class WorldRenderer3D:
         """(RGB, depth along the optical axis in metres, inf for sky)."""
         return self.gl.render_camera(self.camera, self.local(pose_utm), t, "camera", self.light, depth=True)
 
+    def ipm_valid(self, pose_utm, t: float | None = None, max_range_m: float = 80.0) -> np.ndarray:
+        """(H, W) bool: pixels that see the bare ground plane within `max_range_m` (what an inverse perspective
+        mapping may use): False for sky, facades, crowns, trunks, poles and cars, and ground hidden behind
+        them. Ground truth for a matcher's masks."""
+        fwd, _, ground = self.camera.pixel_ground_points(max_range_m)
+        depth = self.render_depth(pose_utm, t)[1]
+        return ground & (np.abs(depth - fwd) <= 0.03 * fwd + 0.05)
+
     def close(self) -> None:
         self.gl.close()
 
