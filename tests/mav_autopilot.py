@@ -3,8 +3,8 @@ constant-speed, level rover and records what the daemon sends back.
 
 Sends HEARTBEAT 1 Hz, GPS2_RAW (3D fix: a real receiver as GPS2, since GPS1 is the daemon's GPS_INPUT) for the
 first second, RAW_IMU at `imu_hz` (level at rest: zacc -1000 mG), ATTITUDE at `att_hz`, SYSTEM_TIME 1 Hz,
-SIMSTATE (the true pose) at 10 Hz; answers PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`), COMMAND_LONG (ACK
-accepted) and TIMESYNC.
+SIMSTATE (the true pose) at 10 Hz; answers PARAM_REQUEST_READ (GPS1_TYPE = `gps1_type`, and any name in `params`),
+COMMAND_LONG (ACK accepted) and TIMESYNC.
 Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; autopilot time = boot_s + elapsed.
 
 Faults: `stall` silences IMU/ATTITUDE; `outage` closes the connection for a while (nothing sent or read; the
@@ -64,6 +64,7 @@ class MiniAutopilot:
     gps_s: float = 1.0  # GPS2_RAW (3D fix, 4 Hz) for this long after start (GPS1 is the daemon's GPS_INPUT)
     received: list[Received] = field(default_factory=list)
     params_asked: list[str] = field(default_factory=list)
+    params: dict[str, float] = field(default_factory=dict)  # further parameters answered (e.g. GPS1_POS_X)
     commands: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -176,6 +177,8 @@ class MiniAutopilot:
                 self.params_asked.append(name)
                 if name == "GPS1_TYPE":
                     mav.param_value_send(b"GPS1_TYPE", float(self.gps1_type), m.MAV_PARAM_TYPE_INT8, 900, 1)
+                elif name in self.params:
+                    mav.param_value_send(name.encode(), float(self.params[name]), m.MAV_PARAM_TYPE_REAL32, 900, 1)
             elif kind == "COMMAND_LONG":
                 self.commands.append(int(msg.param1))
                 mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)

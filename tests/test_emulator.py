@@ -133,3 +133,19 @@ def test_registry_builds_emulator_and_refuses_without_truth() -> None:
     assert isinstance(m, EmulatorMatcher) and m.cross_area and m.name == "emulator"
     with pytest.raises(MatcherError, match="needs ground truth"):
         make_matcher(profile)
+
+
+def test_answers_with_the_cameras_true_position() -> None:
+    """FG2 localises the camera: with a lever arm (1.08 m forward, 0.25 m right of the reference point) the
+    emulator's answer is the camera's position plus the same noise draw as without one, i.e. every t moves by the
+    lever arm rotated from the true heading into the crop's frame."""
+    lever = (1.08, -0.25)
+    plain = EmulatorMatcher(EmulatorConfig(), lambda t: TRUTH, seed=3)
+    armed = EmulatorMatcher(EmulatorConfig(), lambda t: TRUTH, seed=3, lever_fwd_left=lever)
+    rel = TRUTH[2] - 0.35  # true heading minus the crops' heading
+    shift = np.array([math.cos(rel) * lever[0] - math.sin(rel) * lever[1],
+                      math.sin(rel) * lever[0] + math.cos(rel) * lever[1]])
+    for k in range(20):
+        a, b = plain.match(frame(k * 0.1), five_crops()), armed.match(frame(k * 0.1), five_crops())
+        for x, y in zip(a, b):
+            assert y.t == pytest.approx(x.t + shift, abs=1e-9) and y.w == x.w and np.array_equal(y.R, x.R)

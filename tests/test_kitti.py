@@ -23,6 +23,8 @@ from taco_mav.datasets.kitti import (
     load_drive,
     load_sequence,
 )
+from taco_mav.config import load_profile
+from taco_mav.datasets.kitti_io import camera_position_frd_m
 from taco_mav.errors import DataError
 from taco_mav.geo import UtmProjector, enu_from_ned_yaw, grid_convergence, wrap_angle
 
@@ -354,3 +356,25 @@ def test_default_kitti_root_honours_the_environment(tmp_path: Path, monkeypatch:
     assert default_kitti_root() == tmp_path
     monkeypatch.setenv("TACO_KITTI_ROOT", str(tmp_path / "absent"))
     assert default_kitti_root() is None
+
+
+def test_kitti_profile_lever_arm_is_the_calibrations(kitti_root: Path) -> None:
+    """vehicle_profiles/kitti.yaml camera.position_frd_m = image_02's optical centre in the OXTS frame computed from
+    2011_09_26's imu_to_velo, velo_to_cam, R_rect_00 and P_rect_02 (within 2 cm): about 1.08 m ahead, 0.25 m
+    right and 0.73 m above the OXTS unit."""
+    computed = camera_position_frd_m(kitti_root / "2011_09_26")
+    assert computed == pytest.approx([1.0805, 0.2500, -0.7293], abs=1e-3)
+    profile = load_profile("kitti").camera.position_frd_m
+    assert np.max(np.abs(np.array(profile) - computed)) < 0.02
+    assert np.max(np.abs(np.array(profile) - computed)) < 0.001  # in fact to the millimetre
+
+
+def test_camera_position_refuses_a_broken_calibration(tmp_path: Path) -> None:
+    for name in ("calib_imu_to_velo.txt", "calib_velo_to_cam.txt"):
+        (tmp_path / name).write_text("R: 1 0 0 0 1 0 0 0 1\nT: 0 0 0\n")
+    (tmp_path / "calib_cam_to_cam.txt").write_text("R_rect_00: 1 0 0 0 1 0 0 0 1\nP_rect_02: 0 0 0 0 0 0 0 0 0 0 0 0\n")
+    with pytest.raises(DataError, match="P_rect_02 is singular"):
+        camera_position_frd_m(tmp_path)
+    (tmp_path / "calib_imu_to_velo.txt").write_text("R: 1 0 0\nT: 0 0 0\n")
+    with pytest.raises(DataError, match="calib_imu_to_velo.txt: key R: expected 9 finite numbers"):
+        camera_position_frd_m(tmp_path)

@@ -129,3 +129,30 @@ def test_odometry_local_ned_and_covariance() -> None:
 def test_statustext_truncated() -> None:
     msg = roundtrip(lambda mav: encoders.statustext(mav, 4, "x" * 80))
     assert msg.severity == 4 and msg.text == "TACO: " + "x" * 44
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 90.0, 210.0])
+def test_outputs_carry_the_antenna_point(heading_deg: float) -> None:
+    """output.antenna_frd_m: GPS_INPUT, GLOBAL_POSITION_SENSOR and ODOMETRY all report the antenna point, the
+    estimate (the reference point) plus the antenna's body offset rotated by the heading; altitude - z."""
+    ant = OutputConfig(antenna_frd_m=(0.6, 0.3, -0.5))  # 0.6 m ahead, 0.3 m right, 0.5 m above
+    th = math.radians(heading_deg)
+    e = est((100.0, 200.0), th, 3.0)
+    c, s = math.cos(th), math.sin(th)
+    east, north = 100.0 + 0.6 * c + 0.3 * s, 200.0 + 0.6 * s - 0.3 * c  # (forward, left) = (0.6, -0.3)
+    lat, lon = ORIGIN.projector.to_latlon(ORIGIN.utm[0] + east, ORIGIN.utm[1] + north)
+    sol = encoders.solution(e, ORIGIN, ant, healthy=True)
+    gps = roundtrip(lambda mav: encoders.gps_input(mav, sol, ant, 1.7e9))
+    assert gps.lat == int(round(lat * 1e7)) and gps.lon == int(round(lon * 1e7))
+    assert gps.alt == pytest.approx(115.5)
+    gps_ref = roundtrip(lambda mav: encoders.gps_input(mav, encoders.solution(e, ORIGIN, CFG, True), CFG, 1.7e9))
+    moved = ORIGIN.projector.to_utm(gps.lat * 1e-7, gps.lon * 1e-7)
+    ref = ORIGIN.projector.to_utm(gps_ref.lat * 1e-7, gps_ref.lon * 1e-7)
+    assert math.dist(moved, ref) == pytest.approx(math.hypot(0.6, 0.3), abs=0.02)  # degE7 ~ 1 cm
+    gps_sensor = roundtrip(lambda mav: encoders.global_position_sensor(mav, sol, ant, 1, 10.0))
+    assert (gps_sensor.lat, gps_sensor.lon) == (gps.lat, gps.lon) and gps_sensor.alt == pytest.approx(115.5)
+    odo = roundtrip(lambda mav: encoders.odometry(mav, sol, ant, 0.0, 0.0, (0.0, 0.0, 0.0), 0.05, 0))
+    assert (odo.x, odo.y) == pytest.approx((north, east), abs=1e-3)
+    # a non-finite estimate is still the origin, unmoved
+    bad = encoders.solution(est((float("nan"), 0.0), th), ORIGIN, ant, healthy=True)
+    assert (bad.x_n, bad.y_e) == (0.0, 0.0) and bad.fix_type == encoders.GPS_FIX_NONE

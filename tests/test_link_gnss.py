@@ -113,6 +113,28 @@ def test_param_check_reads_our_instance() -> None:
     assert [m.param_id for m in sent] == ["GPS2_TYPE", "GPS_TYPE2"]
 
 
+def test_param_check_reads_the_antenna_offset() -> None:
+    """With output.antenna_frd_m the check also asks for our instance's GPSn_POS_X/Y/Z (and the pre-4.6
+    GPS_POSn_X/Y/Z); answers within 5 cm of the profile are quiet, a larger difference is the warning."""
+    sent = []
+    pc = ParamCheck(sent.append, TX, gps_id=1, antenna_frd_m=(0.5, 0.0, -0.3))
+    pc.tick(0.0, 1, 1)
+    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2", "GPS2_POS_X", "GPS2_POS_Y",
+                                          "GPS2_POS_Z", "GPS_POS2_X", "GPS_POS2_Y", "GPS_POS2_Z"]
+    for name, value in (("GPS1_TYPE", 1.0), ("GPS2_TYPE", 14.0), ("GPS2_POS_X", 0.52), ("GPS2_POS_Y", -0.04)):
+        assert pc.on_message(param_value(name, value)) is None
+    assert not pc.done  # Z still missing
+    assert pc.on_message(param_value("GPS2_POS_Z", -0.3)) is None and pc.done and pc.antenna_warning is None
+    assert pc.antenna == {"X": pytest.approx(0.52), "Y": pytest.approx(-0.04), "Z": pytest.approx(-0.3)}
+    old = ParamCheck(sent.append, TX, gps_id=0, antenna_frd_m=(0.0, 0.0, 0.0))  # firmware before 4.6
+    assert old.on_message(param_value("GPS_POS1_X", 1.08)) is None
+    assert old.on_message(param_value("GPS_POS1_Y", 0.25)) is None
+    text = old.on_message(param_value("GPS_POS1_Z", -0.73))
+    assert text == old.antenna_warning and text in old.warnings
+    assert text.startswith("antenna off 1.08 m: GPS_POS1_X/Y/Z=1.08,0.25,-0.73 but output.antenna_frd_m=0.00,0.00,")
+    assert ParamCheck(sent.append, TX, gps_id=0).antenna_names == {}  # no antenna_frd_m: not asked
+
+
 def test_message_request_repeats_while_wanted() -> None:
     sent = []
     req = MessageRequest(sent.append, TX, ("GPS_GLOBAL_ORIGIN", "HOME_POSITION"), retry_s=2.0)

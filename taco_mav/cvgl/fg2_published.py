@@ -15,6 +15,10 @@ This wrapper does the same with a generator seeded from FG2's `[RandomSeed] seed
 and converts: vehicle (x right, y down) crop pixels = (-t_col, -t_row) / m_per_px; R_img (x, y axes) = the
 inverse of R with the axes swapped; mass = the coupling mass within INLIER_M of the fitted pose, divided by the
 number of ground points the camera sees (so in [0, 1]).
+
+`fast` (default) replaces FG2's `CVM.forward` by `fg2_fast`'s equivalent (ground branch once per trigger, computed
+in `encode_ground`; heights batched; SDPA in DINOv2); precisions: camera_k, crop resampling, CVM, pose and mass in
+fp32 with autocast off; DINOv2 in FG2's fp16 on CUDA and fp32 elsewhere (`dinov2_precision_for`).
 """
 
 from __future__ import annotations
@@ -141,7 +145,7 @@ class PublishedFg2(nn.Module):
                                     antialias=True)
             scale = torch.diag(torch.tensor([gw / w, gh / h, 1.0], device=image.device))
             camera_k = scale @ pixel_from_level.float()
-        feature = self.extractor(resized)  # FG2's DinoExtractor: fp16 weights and input, fp32 out
+        feature = self.extractor(resized)  # FG2's DinoExtractor: fp16 on CUDA (fp32 elsewhere), fp32 out
         if not self.fast:
             return GroundFeatures(feature, camera_k)
         with torch.autocast(device_type=image.device.type, enabled=False):  # the CVM runs in fp32
@@ -173,7 +177,7 @@ class PublishedFg2(nn.Module):
         B = len(aerial)
         with torch.autocast(device_type=aerial.device.type, enabled=False):
             sat_input = self.aerial_input(aerial, m_per_px)
-        sat_feature = self.extractor(sat_input)  # FG2's DinoExtractor: fp16 weights and input, fp32 out
+        sat_feature = self.extractor(sat_input)  # FG2's DinoExtractor: fp16 on CUDA (fp32 elsewhere), fp32 out
         with torch.autocast(device_type=aerial.device.type, enabled=False):  # CVM, pose and mass in fp32
             if feats.desc is not None and feats.keep is not None:
                 sat_desc = fg2_fast.aerial_descriptors(self.cvm, sat_feature.float())

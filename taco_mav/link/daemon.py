@@ -73,6 +73,11 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
                                else options.matcher_timeout_s))
         self.profile, self.opt = profile, options
+        # The first run after an install compiles the UKF kernels (numba: seconds, a minute on a busy machine). Done
+        # here, before `start()` opens the link, so the loop never stalls on it mid-drive; later runs load the cache.
+        started = time.perf_counter()
+        ukf_kernels.warm_up()
+        log.debug("filter kernels ready in %.1f s", time.perf_counter() - started)
         self.clock, self.wall_clock = clock, wall_clock
         self.params = localiser_params(profile)
         self.stop_event = threading.Event()
@@ -113,14 +118,8 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             self._thread.join(timeout)
 
     def _setup(self) -> None:
-        """Compile the filter's kernels, then open logs, the link, the fix pipeline and the camera motion; request
-        streams; start the timers."""
+        """Open logs, the link, the fix pipeline and the camera motion; request streams; start the timers."""
         p, opt = self.profile, self.opt
-        # The first run after an install compiles the UKF kernels (numba; seconds, a minute on a busy machine):
-        # done here, before the link opens, so the loop never stalls on it mid-drive; later runs load the cache.
-        started = time.perf_counter()
-        ukf_kernels.warm_up()
-        log.debug("filter kernels ready in %.1f s", time.perf_counter() - started)
         log_dir = Path(opt.log_dir) if opt.log_dir else None
         if log_dir is not None:
             log_dir.mkdir(parents=True, exist_ok=True)

@@ -113,7 +113,6 @@ def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) ->
     ok = bool(np.all(np.isfinite(xy)) and math.isfinite(sigma) and math.isfinite(est.theta) and math.isfinite(est.speed))
     if ok:
         xy = antenna_point(xy, float(est.theta), cfg.antenna_frd_m)
-    if ok:
         try:
             lat, lon = origin.latlon(xy)
         except Exception:  # noqa: BLE001 - a projection failure must degrade, never crash the output
