@@ -16,9 +16,9 @@ from taco_mav import checks
 from taco_mav.bench import SECTION_NAMES
 from taco_mav.cli_support import TacoArgumentParser, add_global_flags, configure_logging, package_version, run_command
 from taco_mav.commands import live, offline
+from taco_mav.config.profile import MATCHERS
 
 ESTIMATORS = ("paper", "taco+")  # taco_mav.config.Estimator values (tests/test_cli.py checks they agree)
-MATCHERS = ("classical", "emulator", "fg2")  # taco_mav.cvgl.registry.MATCHERS
 IMU_PRESETS = ("automotive", "rt3003", "none")  # taco_mav.datasets.synthetic.imu_model.PRESETS
 
 

@@ -6,12 +6,12 @@ Implementations are imported lazily so that, e.g., torch is only needed when the
 from __future__ import annotations
 
 from taco_mav.camera_geometry import GroundCamera
-from taco_mav.config import Profile, camera_lever_fwd_left
+from taco_mav.config import MATCHERS, Profile, camera_lever_fwd_left
 from taco_mav.cvgl.base import Matcher
 from taco_mav.cvgl.emulator import TruthFn
 from taco_mav.errors import ConfigError, MatcherError
 
-MATCHERS = ("classical", "emulator", "fg2")
+__all__ = ["MATCHERS", "make_matcher"]
 
 
 def make_matcher(profile: Profile, truth: TruthFn | None = None, *, cross_area: bool = False,
