@@ -53,14 +53,22 @@ def _ground(cv: Canvas, scene: Scene) -> None:
     cv.mat[:] = np.where(dist > 0.45, Material.YARD, Material.GRASS).astype(np.uint8)
 
 
+def lot_axes(cv: Canvas, lot) -> tuple[np.ndarray, np.ndarray, float, list[tuple[float, float]]]:
+    """Paint a parking lot's asphalt; return its unit axes u (along the bays) and v (into them), ENU, its
+    length along u, metres, and its bay bands (start, end) along v, metres."""
+    c = lot.corners
+    u = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
+    v = (c[3] - c[0]) / np.linalg.norm(c[3] - c[0])
+    L, D = float(np.linalg.norm(c[1] - c[0])), float(np.linalg.norm(c[3] - c[0]))
+    cv.poly(c, (95, 95, 98), Material.ASPHALT)
+    bands = [(D - 5.0, D)] if lot.rows == 1 else [(0.0, 5.0), (D - 5.0, D)]
+    return u, v, L, bands
+
+
 def _lots(cv: Canvas, scene: Scene, rng: np.random.Generator) -> None:
     for lot in scene.lots:
         c = lot.corners
-        u = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
-        v = (c[3] - c[0]) / np.linalg.norm(c[3] - c[0])
-        L, D = np.linalg.norm(c[1] - c[0]), np.linalg.norm(c[3] - c[0])
-        cv.poly(c, (95, 95, 98), Material.ASPHALT)
-        bands = [(D - 5.0, D)] if lot.rows == 1 else [(0.0, 5.0), (D - 5.0, D)]
+        u, v, L, bands = lot_axes(cv, lot)
         lines, cars = [], []
         for v0, v1 in bands:
             for k in range(int(L / 2.5) + 1):

@@ -59,11 +59,7 @@ def _lot_ground(cv: Canvas, scene: Scene) -> None:
     """Parking lots: asphalt and bay lines (the cars are 3-D objects)."""
     for lot in scene.lots:
         c = lot.corners
-        u = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
-        v = (c[3] - c[0]) / np.linalg.norm(c[3] - c[0])
-        L, D = np.linalg.norm(c[1] - c[0]), np.linalg.norm(c[3] - c[0])
-        cv.poly(c, (95, 95, 98), Material.ASPHALT)
-        bands = [(D - 5.0, D)] if lot.rows == 1 else [(0.0, 5.0), (D - 5.0, D)]
+        u, v, L, bands = paint.lot_axes(cv, lot)
         lines = [np.array([c[0] + u * (k * 2.5 + 0.2) + v * v0, c[0] + u * (k * 2.5 + 0.2) + v * v1])
                  for v0, v1 in bands for k in range(int(L / 2.5) + 1)]
         cv.line(lines, 0.15, paint.WHITE, Material.MARKING)
