@@ -1,14 +1,17 @@
 """Camera sources for the daemon: OpenCV VideoCapture (device index, video file, RTSP URL, GStreamer pipeline),
-an image folder with timestamps (KITTI `image_02`), and `world:DIR`, which renders a synthetic world at the
-simulator's true pose (SIMSTATE) for simulation.
+an image folder with timestamps (KITTI `image_02`), and sources registered by scheme: `world:DIR`, which renders
+a synthetic world at the simulator's true pose (SIMSTATE) for simulation, is registered by
+`taco_mav.datasets.synthetic` (importing it registers the scheme; this module never imports datasets).
 
 Every source answers `frame_near(t, max_gap_s) -> (t_frame, RGB uint8 (H, W, 3)) | None`. Times are seconds on
 the source's `clock`: the companion's monotonic clock for live cameras (stamped at grab), the autopilot clock
 for the folder (frame i at stamp_i - stamp_0 + offset) and world sources (the autopilot time of the SIMSTATE
 pose). The daemon maps query capture times onto that clock before asking.
 
-Spec strings (`--camera`): "world:DIR", "folder:DIR[@OFFSET_S]" or an existing directory, "0" (device index),
-a video file, "rtsp://...", or a GStreamer pipeline (contains "!").
+Spec strings (`--camera`): "SCHEME:BODY" of a registered scheme (`register_camera_scheme`; "world:DIR"),
+"folder:DIR[@OFFSET_S]" or an existing directory, "0" (device index), a video file, "rtsp://..." (any
+"scheme://" URL), or a GStreamer pipeline (contains "!"). Any other "word:" prefix is refused with a
+ConfigError naming the spec (a typo, or a scheme whose package was not imported).
 
 `FrameGuard` vets what a source returns before it reaches a matcher: missing, stale (frame time far from the
 capture time), corrupt (unreadable file), wrong shape, blank (uniform: lens cap, dead sensor) and frozen
@@ -22,15 +25,15 @@ from __future__ import annotations
 
 import bisect
 import enum
-import json
 import logging
 import math
+import re
 import threading
 import time
 import zlib
 from collections import deque
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
 import cv2
 import numpy as np
@@ -42,8 +45,8 @@ from taco_mav.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CameraSource", "ClockDomain", "FolderSource", "FrameGuard", "FrameRejected", "VideoSource", "WorldSource",
-           "open_camera"]
+__all__ = ["CameraFactory", "CameraSource", "ClockDomain", "FolderSource", "FrameGuard", "FrameRejected",
+           "VideoSource", "camera_schemes", "open_camera", "register_camera_scheme", "unregister_camera_scheme"]
 
 FRAME_REJECT_REASONS = ("no_frame", "stale_frame", "corrupt_frame", "bad_shape", "blank_frame", "frozen_frame")
 
@@ -65,11 +68,14 @@ class ClockDomain(enum.Enum):
 
 class CameraSource(Protocol):
     """A camera. `needs_pose` sources want `feed_pose(t_autopilot, lat, lon, yaw_ned)` calls (world:);
-    `noiseless` sources render a model, so bit-identical frames at different times are legitimate there."""
+    `noiseless` sources render a model, so bit-identical frames at different times are legitimate there;
+    `mosaic_path`: the GeoTIFF a simulated source renders from, the daemon's default satellite map (None for
+    real cameras)."""
 
     clock: ClockDomain
     needs_pose: bool
     noiseless: bool
+    mosaic_path: Path | None
 
     def start(self) -> None: ...
 
@@ -89,6 +95,7 @@ class VideoSource:
     clock = ClockDomain.COMPANION
     needs_pose = False
     noiseless = False
+    mosaic_path: Path | None = None
 
     def __init__(self, spec: str, ring: int = 30, clock=time.monotonic) -> None:
         self.spec = spec
@@ -171,6 +178,7 @@ class FolderSource:
     clock = ClockDomain.AUTOPILOT
     needs_pose = False
     noiseless = False
+    mosaic_path: Path | None = None
 
     def __init__(self, folder: str | Path, offset_s: float = 0.0) -> None:
         from taco_mav.timestamps import read_timestamps
@@ -207,93 +215,6 @@ class FolderSource:
         if bgr is None:
             raise FrameRejected("corrupt_frame", f"{self.paths[best].name} not readable")
         return self.times[best], cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-
-
-def world_mosaic(world_dir: Path) -> Path:
-    """The GeoTIFF named by DIR/world.json ("mosaic", relative to DIR)."""
-    meta = Path(world_dir) / "world.json"
-    try:
-        data = json.loads(meta.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"--camera world:{world_dir}: cannot read world.json ({exc})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("mosaic"), str):
-        raise ConfigError(f"{meta}: key \"mosaic\" missing")
-    path = (Path(world_dir) / data["mosaic"]).resolve()
-    if not path.is_file():
-        raise ConfigError(f"{meta}: mosaic {path} not found")
-    return path
-
-
-class WorldSource:
-    """Renders the synthetic world's ground view at the simulator's true pose (simulation only). Poses come in
-    through `feed_pose` (autopilot time s, lat/lon degrees, NED yaw rad, true north); a frame is rendered only
-    when asked for, at the stored pose nearest the requested time. With `lens` the frames are drawn through it
-    (its size and distortion; `camera` gives the mount height and pitch), as a real calibrated camera's."""
-
-    clock = ClockDomain.AUTOPILOT
-    needs_pose = True
-    noiseless = True
-
-    def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000,
-                 lens: LensCalibration | None = None) -> None:
-        import rasterio
-
-        from taco_mav.datasets.synthetic.render import GroundRenderer, LensRenderer
-        from taco_mav.datasets.synthetic.world3d import LensRenderer3D, WorldRenderer3D, world_is_3d
-        from taco_mav.geo import UtmProjector
-
-        self.mosaic_path = world_mosaic(Path(world_dir))
-        with rasterio.open(self.mosaic_path) as ds:
-            bands = ds.read()
-            transform, epsg = ds.transform, ds.crs.to_epsg()
-        rgb = np.repeat(bands[:1], 3, axis=0) if bands.shape[0] < 3 else bands[:3]
-        mosaic = np.ascontiguousarray(np.transpose(rgb, (1, 2, 0)))
-        self.is_3d = world_is_3d(Path(world_dir))
-        self._t0: float | None = None  # autopilot time of the first pose = drive time 0 (moving cars)
-        self.renderer: GroundRenderer | LensRenderer | WorldRenderer3D | LensRenderer3D
-        if self.is_3d:  # perspective, occlusion, the camera's own day (datasets/synthetic/world3d.py)
-            self.renderer = (WorldRenderer3D(Path(world_dir), camera) if lens is None else
-                             LensRenderer3D(Path(world_dir), lens, camera.mount_height_m, camera.pitch_rad))
-        else:
-            self.renderer = (
-                GroundRenderer(mosaic, transform, camera) if lens is None
-                else LensRenderer(mosaic, transform, lens, camera.mount_height_m, camera.pitch_rad))
-        self._size = (camera.width, camera.height) if lens is None else (lens.width, lens.height)
-        self.projector = UtmProjector(int(epsg))
-        self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=ring)
-        self._lock = threading.Lock()
-
-    def feed_pose(self, t: float, lat: float, lon: float, yaw_ned: float) -> None:
-        e, n = self.projector.to_utm(lat, lon)
-        theta = math.pi / 2.0 - yaw_ned + float(self.projector.grid_convergence(lat, lon))
-        with self._lock:
-            if self._poses and t < self._poses[-1][0]:
-                self._poses.clear()  # the autopilot clock went back (reboot)
-                self._t0 = None
-            if self._t0 is None:
-                self._t0 = t
-            self._poses.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
-
-    def frame_size(self) -> tuple[int, int] | None:
-        return self._size
-
-    def start(self) -> None:
-        pass
-
-    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
-        with self._lock:
-            if not self._poses:
-                return None
-            best = min(self._poses, key=lambda p: abs(p[0] - t))
-        if abs(best[0] - t) > max_gap_s:
-            return None
-        if self.is_3d:
-            return best[0], self.renderer.render(np.array(best[1:]), best[0] - (self._t0 or 0.0))
-        return best[0], self.renderer.render(np.array(best[1:]))
-
-    def close(self) -> None:
-        if self.is_3d:
-            self.renderer.close()  # the GL context and its thread
 
 
 class FrameGuard:
@@ -361,11 +282,39 @@ class FrameGuard:
         return self.horizon.take_warnings() if self.horizon is not None else []
 
 
+CameraFactory = Callable[[str, GroundCamera, LensCalibration | None], CameraSource]
+"""Makes a source from a spec's body (after "SCHEME:"), the camera model and the profile's lens (or None)."""
+
+_SCHEMES: dict[str, CameraFactory] = {}
+# where the schemes this module knows of are registered, for the error when one is used unregistered
+_SCHEME_HOMES = {"world": "taco_mav.datasets.synthetic"}
+_SCHEME_RE = re.compile(r"([A-Za-z][A-Za-z0-9_+.-]+):(?!//)")  # "word:" (not "C:", not "rtsp://")
+
+
+def register_camera_scheme(scheme: str, factory: CameraFactory) -> None:
+    """`open_camera("SCHEME:BODY", camera, lens)` returns `factory(BODY, camera, lens)` from now on (again
+    registering a scheme replaces its factory). "folder" is built in and cannot be replaced."""
+    if not _SCHEME_RE.fullmatch(f"{scheme}:") or scheme == "folder":
+        raise ValueError(f"camera scheme {scheme!r}: must be a word of 2+ letters/digits, not 'folder'")
+    _SCHEMES[scheme] = factory
+
+
+def unregister_camera_scheme(scheme: str) -> CameraFactory | None:
+    """Forget a scheme; returns its factory (None when it was not registered)."""
+    return _SCHEMES.pop(scheme, None)
+
+
+def camera_schemes() -> tuple[str, ...]:
+    """The registered schemes, sorted."""
+    return tuple(sorted(_SCHEMES))
+
+
 def open_camera(spec: str, camera: GroundCamera, lens: LensCalibration | None = None) -> CameraSource:
-    """A camera source from a `--camera` spec (see the module docstring); lens: a world camera renders
-    through it (the profile's calibration)."""
-    if spec.startswith("world:"):
-        return WorldSource(spec[len("world:"):], camera, lens=lens)
+    """A camera source from a `--camera` spec (see the module docstring); lens: a registered source (world:)
+    renders through it (the profile's calibration)."""
+    scheme = _SCHEME_RE.match(spec)
+    if scheme and scheme.group(1) in _SCHEMES:
+        return _SCHEMES[scheme.group(1)](spec[scheme.end():], camera, lens)
     if spec.startswith("folder:") or (Path(spec).is_dir()):
         body = spec[len("folder:"):] if spec.startswith("folder:") else spec
         path, _, offset = body.partition("@")
@@ -373,4 +322,12 @@ def open_camera(spec: str, camera: GroundCamera, lens: LensCalibration | None = 
             return FolderSource(path, float(offset) if offset else 0.0)
         except ValueError:
             raise ConfigError(f"--camera {spec!r}: offset after '@' must be seconds") from None
+    if scheme and "!" not in spec and not Path(spec).exists():  # not a pipeline, not a file named "x:y"
+        name = scheme.group(1)
+        known = ", ".join(f"{s}:" for s in ("folder", *camera_schemes()))
+        if name in _SCHEME_HOMES:
+            raise ConfigError(f"--camera {spec!r}: camera scheme '{name}:' is not registered (import "
+                              f"{_SCHEME_HOMES[name]} first, which registers it; registered: {known})")
+        raise ConfigError(f"--camera {spec!r}: unknown camera scheme '{name}:' (known: {known}, or a device "
+                          "index, video file, URL or GStreamer pipeline)")
     return VideoSource(spec)

@@ -111,10 +111,12 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     out = Path(out)
     run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
     from taco_mav.config import Estimator
+    from taco_mav.datasets.synthetic import register_world_camera
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
 
+    register_world_camera()  # the daemon's camera is world:DIR
     world = demo_world(out, progress)
     start = time.monotonic()
     port = _free_port()

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+import taco_mav.datasets.synthetic  # noqa: F401 - registers the `world:DIR` camera scheme (camera.open_camera)
+
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw"
 
 

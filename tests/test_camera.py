@@ -13,10 +13,12 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from taco_mav.camera import ClockDomain, FolderSource, VideoSource, WorldSource, open_camera
+from taco_mav import camera as camera_mod
+from taco_mav.camera import ClockDomain, FolderSource, VideoSource, open_camera, register_camera_scheme
 from taco_mav.camera_calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig
+from taco_mav.datasets.synthetic.world_camera import WorldSource, register_world_camera
 from taco_mav.errors import ConfigError
 from taco_mav.geo import UtmProjector
 
@@ -108,6 +110,48 @@ def test_world_source_renders_at_pose(tmp_path: Path) -> None:
     assert t2 == 10.1 and np.abs(north.astype(int) - east.astype(int)).mean() > 10  # different view
     src.feed_pose(2.0, 49.0, 8.4, 0.0)  # clock went back (reboot): history cleared
     assert src.frame_near(10.0, 0.05) is None
+
+
+def test_world_scheme_unregistered_is_one_line_error_then_registered_opens(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """camera.py knows no world renderer: `world:` works only once datasets.synthetic registered it."""
+    _world(tmp_path)
+    monkeypatch.setattr(camera_mod, "_SCHEMES", {})  # as if taco_mav.datasets.synthetic were never imported
+    with pytest.raises(ConfigError) as err:
+        open_camera(f"world:{tmp_path}", CAM)
+    msg = str(err.value)
+    assert "\n" not in msg and f"world:{tmp_path}" in msg and "not registered" in msg
+    assert "taco_mav.datasets.synthetic" in msg
+    register_world_camera()
+    register_world_camera()  # idempotent
+    assert camera_mod.camera_schemes() == ("world",)
+    src = open_camera(f"world:{tmp_path}", CAM)
+    assert isinstance(src, WorldSource) and src.mosaic_path == (tmp_path / "map.tif").resolve()
+    assert src.needs_pose and src.noiseless and src.clock is ClockDomain.AUTOPILOT
+
+
+def test_unknown_camera_scheme_is_one_line_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(ConfigError, match=r"--camera 'wrld:/x': unknown camera scheme 'wrld:' \(known: folder:"):
+        open_camera("wrld:/x", CAM)
+    # URLs, pipelines and files whose names hold a colon are not schemes: they go to OpenCV
+    for spec in ("rtsp://cam.local/stream", "udpsrc port=5000 caps=application/x-rtp ! decodebin ! appsink"):
+        assert isinstance(open_camera(spec, CAM), VideoSource)
+    odd = tmp_path / "clip:1.avi"
+    odd.write_bytes(b"")
+    assert isinstance(open_camera(str(odd), CAM), VideoSource)
+    # a registered scheme gets the body, the camera model and the lens
+    monkeypatch.setattr(camera_mod, "_SCHEMES", {})
+    seen: list[tuple] = []
+    register_camera_scheme("fake", lambda body, cam, lens: seen.append((body, cam, lens)) or "src")
+    assert open_camera("fake:a:b@1", CAM) == "src" and seen == [("a:b@1", CAM, None)]
+    assert camera_mod.unregister_camera_scheme("fake") is not None and camera_mod.camera_schemes() == ()
+    with pytest.raises(ValueError):
+        register_camera_scheme("folder", lambda body, cam, lens: None)
+
+
+def test_real_sources_have_no_mosaic(tmp_path: Path) -> None:
+    assert open_camera(f"folder:{_folder(tmp_path)}", CAM).mosaic_path is None
+    assert VideoSource("0").mosaic_path is None
 
 
 def test_world_source_renders_through_a_lens(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from taco_mav.datasets.kitti import load_drive
-from taco_mav.errors import DataError
+from taco_mav.errors import DataError, UsageError
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "download_kitti.py"
 UNREACHABLE = "http://127.0.0.1:9/none"  # discard port: any attempt to fetch fails at once
@@ -68,9 +68,9 @@ def test_resolve_targets(dk: ModuleType) -> None:
     assert dk.resolve_targets(["07-09,4"]) == ["2011_09_30_drive_0027", "2011_09_30_drive_0028",
                                                "2011_09_30_drive_0033", "2011_09_30_drive_0016"]
     assert len(dk.resolve_targets(["00-10"])) == 11
-    with pytest.raises(DataError, match="unknown KITTI odometry sequence '12'"):
+    with pytest.raises(UsageError, match="unknown KITTI odometry sequence '12'"):
         dk.resolve_targets(["12"])
-    with pytest.raises(DataError, match="'kitti': neither an odometry sequence id"):
+    with pytest.raises(UsageError, match="'kitti': neither an odometry sequence id"):
         dk.resolve_targets(["kitti"])
 
 

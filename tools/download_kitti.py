@@ -27,7 +27,7 @@ from pathlib import Path, PurePosixPath
 from typing import Sequence
 
 from taco_mav.datasets.kitti import ODOMETRY_SEQUENCES
-from taco_mav.errors import DataError
+from taco_mav.errors import DataError, TacoError, UsageError
 
 log = logging.getLogger("download_kitti")
 
@@ -49,7 +49,7 @@ def calib_url(date: str, base_url: str = BASE_URL) -> str:
 
 def resolve_targets(targets: Sequence[str]) -> list[str]:
     """Drive names ("2011_09_30_drive_0018") for sequence ids, id ranges ("00-10") and drive names, in order,
-    without repeats. Raises DataError for anything else."""
+    without repeats. Raises UsageError (exit 2) for anything else."""
     drives: list[str] = []
     for raw in targets:
         for item in filter(None, (s.strip() for s in raw.split(","))):
@@ -63,7 +63,7 @@ def resolve_targets(targets: Sequence[str]) -> list[str]:
             elif item.isdigit():
                 names = [_sequence_drive(item.zfill(2))]
             else:
-                raise DataError(f"{item!r}: neither an odometry sequence id (00-10) nor a drive name "
+                raise UsageError(f"{item!r}: neither an odometry sequence id (00-10) nor a drive name "
                                 "like 2011_09_30_drive_0018")
             drives.extend(n for n in names if n not in drives)
     return drives
@@ -71,7 +71,7 @@ def resolve_targets(targets: Sequence[str]) -> list[str]:
 
 def _sequence_drive(key: str) -> str:
     if key not in ODOMETRY_SEQUENCES:
-        raise DataError(f"unknown KITTI odometry sequence {key!r} (known: {', '.join(ODOMETRY_SEQUENCES)})")
+        raise UsageError(f"unknown KITTI odometry sequence {key!r} (known: {', '.join(ODOMETRY_SEQUENCES)})")
     return ODOMETRY_SEQUENCES[key].drive_name
 
 
@@ -218,7 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         urls = fetch(resolve_targets(args.targets), args.root, folders=folders, keep_zips=args.keep_zips,
                      dry_run=args.dry_run, base_url=args.base_url.rstrip("/"))
-    except DataError as exc:
+    except TacoError as exc:
         log.error("error: %s", exc)
         return exc.exit_code
     except KeyboardInterrupt:

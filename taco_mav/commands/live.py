@@ -68,7 +68,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_camera_and_map(args, profile.matcher)
     if args.log_dir:
         checks.output_dir(args.log_dir, "--log-dir", create=False)
+    from taco_mav.datasets.synthetic import register_world_camera
     from taco_mav.link.daemon import Daemon, DaemonOptions  # the heavy import, after every check
+
+    register_world_camera()  # --camera world:DIR (camera.open_camera's registry; link never imports datasets)
 
     log_dir = None
     if args.log_dir:

@@ -109,6 +109,24 @@ class PlusConfig:
     recover_interval_s: float = field(default=0.5, metadata=bounded(0.0))  # also the least spacing of triggers
     recover_w_min: float = field(default=0.5, metadata=bounded(0.0, 1.0))
     confirm_fixes: int = field(default=3, metadata=bounded(0))
+    # Held jumps (3-D world, issue 17): the innovation gate is on P + R, and R of a weak match (low w) is large,
+    # so a confident-looking wrong match 15-30 m off passed it while the IMU track was good to 1 m, and the
+    # true fixes after it were then gated out. A fix that moves the estimate further than
+    # jump_confirm_k sqrt(lambda_max(P) + jump_confirm_floor_m^2) (the prior alone, the fix's own error floor
+    # beside it) is held, a verify query is asked at once, and it is applied (its jump entering P) only when the
+    # next answer implies the same correction to within confirm_agree_m + confirm_agree_per_m x the distance
+    # driven between them (the IMU's own drift), within confirm_window_s; 0 disables.
+    jump_confirm_k: float = field(default=2.0, metadata=bounded(0.0))
+    jump_confirm_floor_m: float = field(default=2.0, metadata=bounded(0.0))
+    # The same for a recovery answer while lock is lost: the best of a 37-61 crop grid is often a chance peak
+    # (w 0.5-0.85 on the 3-D world), two consecutive grids agreeing by chance are rare.
+    recover_confirm: bool = True
+    confirm_agree_m: float = field(default=3.0, metadata=bounded(0.0))
+    confirm_agree_per_m: float = field(default=0.05, metadata=bounded(0.0))
+    confirm_window_s: float = field(default=10.0, metadata=bounded(0.0))
+    # Agreeing answers needed (the held one included): answers 0.5 s apart see nearly the same view, and a
+    # wrong match on a self-similar stretch of road repeats (3-D world: two in a row 20 m off).
+    confirm_answers: int = field(default=3, metadata=bounded(2))
 
 
 @dataclass(frozen=True)

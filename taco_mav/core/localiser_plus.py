@@ -81,6 +81,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._odo = 0.0  # distance travelled, metres (new frames only)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
+        # a held answer (jump_confirm_k, recover_confirm): (its correction z - x at capture (ENU m), arrival t, odo,
+        # answers that agreed so far)
+        self._held: tuple[np.ndarray, float, float, int] | None = None
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -179,6 +182,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
             return self._planned("recover", hex_offsets(rings, q.grid_spacing_m))
         arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
+        if self._held is not None and self.t - self._held[1] <= q.confirm_window_s:
+            return self._planned("verify", arm)  # a held answer waits for a second one
         if state is LockState.CONFIRMING:
             return self._planned("confirm", arm)
         if self._gnss_handover():
@@ -259,20 +264,28 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         jump = float(np.linalg.norm(innov))
         nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
         state = self.lock.state
-        if state is LockState.LOST:  # relocalise: the candidate replaces the position (the jump enters P)
-            tick.P = tick.P.copy()
-            tick.P[:2, :2] += jump * jump * np.eye(2)
-        elif nis > (qp.chi2_gate if c.support > 1 else qp.chi2_gate_single):
+        if state is not LockState.LOST and nis > (qp.chi2_gate if c.support > 1 else qp.chi2_gate_single):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
-        if qp.adaptive_fix_noise and state is LockState.LOCKED:  # learn from this fix for the next ones
+        held = self._hold(state, innov, jump, tick.P, now)
+        if held == "hold":
+            self._failed("unconfirmed", jump)
+            return self._log(FixOutcome(query_id, False, "unconfirmed", q.capture_t, now, k, z, psi[k], s_f, s_l, nis,
+                                        weights))
+        if state is LockState.LOST or held == "confirmed":  # relocalise: the candidate replaces the position
+            tick.P = tick.P.copy()  # (the jump enters P)
+            tick.P[:2, :2] += jump * jump * np.eye(2)
+        self._held = None
+        learn = state is LockState.LOCKED and held is None
+        if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
             self.fix_scale.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f0, s_l0))
         self._fuse(tick, z, s_f, s_l)
         self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
-        if state is LockState.LOCKED:
+        if learn:
             self.report_factor.update(nis)
-        self._settle_lock(state, jump, s_f, s_l)
+        # a confirmed jump is a relocalisation: half of it stays in P until confirm_fixes later fixes agree
+        self._settle_lock(LockState.LOST if held == "confirmed" else state, jump, s_f, s_l)
         if self._history:
             self._feedback(self._history[-1])
         self._gate_misses = self._misses_in_row = 0
@@ -281,6 +294,35 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if self.q.guard:
             self._reset_unaided()
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
+
+    def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float) -> str | None:
+        """Whether an answer that passed the weight and yaw gates needs a second one: None (no: the usual gates
+        decide), "hold" (kept, not applied) or "confirmed" (it implies the same correction z - x as the answer
+        held before it, to within confirm_agree_m plus confirm_agree_per_m of the distance driven since: apply
+        it as a relocalisation). Held: a recovery answer while lock is lost (recover_confirm), and an answer
+        that moves the estimate further than jump_confirm_k sqrt(lambda_max(P) + jump_confirm_floor_m^2), P the
+        prior position covariance (m^2): a jump the IMU track's own uncertainty does not allow."""
+        q = self.q
+        if state is LockState.LOST:
+            if not q.recover_confirm:
+                return None
+        else:
+            if q.jump_confirm_k <= 0.0:
+                return None
+            lam = max(float(np.linalg.eigvalsh(P[:2, :2]).max()), 0.0)
+            if jump <= q.jump_confirm_k * math.sqrt(lam + q.jump_confirm_floor_m**2):
+                return None
+        h = self._held
+        if h is not None and t - h[1] <= q.confirm_window_s:
+            moved = abs(self._odo - h[2])
+            if float(np.linalg.norm(innov - h[0])) <= q.confirm_agree_m + q.confirm_agree_per_m * moved:
+                if h[3] + 1 >= q.confirm_answers:
+                    self._held = None
+                    return "confirmed"
+                self._held = (np.array(innov, dtype=float), t, self._odo, h[3] + 1)
+                return "hold"
+        self._held = (np.array(innov, dtype=float), t, self._odo, 1)
+        return "hold"
 
     def _failed(self, reason: str, innovation_m: float) -> None:
         """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, WorldSource, open_camera
+from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, open_camera
 from taco_mav.camera_calibration import FrameRectifier
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.camera_horizon import HorizonCheck
@@ -104,7 +104,7 @@ class FixPipeline:
             self.guard = FrameGuard(self.ground_camera.width, self.ground_camera.height, opt.frame_max_gap_s,
                                     check_frozen=not self.camera.noiseless, rectifier=self.rectifier,
                                     horizon=HorizonCheck(self.ground_camera))
-        map_path = opt.map_path or (self.camera.mosaic_path if isinstance(self.camera, WorldSource) else None)
+        map_path = opt.map_path or getattr(self.camera, "mosaic_path", None)  # a simulated camera's world
         if map_path is not None:
             from taco_mav.cvgl.satellite import SatelliteMap
 
@@ -172,8 +172,8 @@ class FixPipeline:
 
     def on_pose(self, t: float, pose: SimPose, origin: encoders.Origin | None) -> None:
         """SIMSTATE true pose at autopilot time t (s): drives a world camera and the emulator's truth."""
-        if isinstance(self.camera, WorldSource):
-            self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)
+        if self.camera is not None and self.camera.needs_pose:
+            self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)  # type: ignore[attr-defined]
         if origin is not None:
             e, n = origin.projector.to_utm(pose.lat, pose.lon)
             theta = math.pi / 2 - pose.yaw + origin.convergence
