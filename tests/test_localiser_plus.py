@@ -304,3 +304,38 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
     assert after and after[0].accepted and new.lock.losses == 0
     truth = np.array(d.pose_at(d.t[-1])[:2])
     assert np.linalg.norm(new.estimate().xy - truth) < 1.5
+
+
+def test_a_chance_peak_between_true_recovery_answers_does_not_reset_their_count():
+    """Issue 17 (3-D world seed 4): recovery grids answered true, chance, true, chance, true ... Held answers are
+    kept side by side (confirm_keep), so the third true answer relocalises and no chance peak is ever applied."""
+    d = _drive()
+    oracle = OracleMatcher(d, seed=2)
+    rng = np.random.default_rng(11)
+    grids = []
+
+    def planted(q):
+        if len(q.crop_centres) <= 5:
+            return oracle.answer(q) if any(o.accepted and len(o.weights) > 5 for o in loc_outcomes) else \
+                [None] * len(q.crop_centres)
+        grids.append(q.capture_t)
+        if len(grids) % 2 == 0:  # every other grid: one confident chance peak 20-50 m from the truth
+            a = rng.uniform(0, 2 * math.pi)
+            peak = np.array(d.pose_at(q.capture_t)[:2]) + rng.uniform(20.0, 50.0) * np.array([math.cos(a), math.sin(a)])
+            out = [MatchResult(np.eye(2), np.zeros(2), 0.05)] * len(q.crop_centres)
+            out[0] = answers_at(q, peak, w=0.95)[0]
+            return out
+        return oracle.answer(q)
+
+    loc_outcomes = []
+    params = dataclasses.replace(CONFIRM, plus=dataclasses.replace(CONFIRM.plus, confirm_keep=4))
+    loc = make_localiser(params, 0.0, 40.0, 0.0, heading=float(d.theta[0]), speed=float(d.speed[0]))
+    for s in d.samples:
+        loc.add_imu(s)
+        q = loc.poll_query()
+        if q is not None:
+            loc_outcomes.append(loc.add_fix(q.query_id, planted(q)))
+    applied = [o for o in loc.outcomes if o.accepted and len(o.weights) > 5]
+    assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
+    assert len(grids) <= 8  # true answers 1, 3, 5 confirm: not reset by the peaks between them
+    assert loc.lock.state is LockState.LOCKED

@@ -81,9 +81,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._odo = 0.0  # distance travelled, metres (new frames only)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
-        # a held answer (jump_confirm_k, recover_confirm): (its correction z - x at capture (ENU m), arrival t, odo,
-        # answers that agreed so far)
-        self._held: tuple[np.ndarray, float, float, int] | None = None
+        # held answers (jump_confirm_k, recover_confirm), newest last: (the correction z - x at capture (ENU m),
+        # arrival t of the latest agreeing answer, odometer then, answers that agreed so far)
+        self._held: list[tuple[np.ndarray, float, float, int]] = []
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -182,7 +182,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
             return self._planned("recover", hex_offsets(rings, q.grid_spacing_m))
         arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
-        if self._held is not None and self.t - self._held[1] <= q.confirm_window_s:
+        if any(self.t - h[1] <= q.confirm_window_s for h in self._held):
             return self._planned("verify", arm)  # a held answer waits for a second one
         if state is LockState.CONFIRMING:
             return self._planned("confirm", arm)
@@ -264,7 +264,11 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         jump = float(np.linalg.norm(innov))
         nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
         state = self.lock.state
-        if state is not LockState.LOST and nis > (qp.chi2_gate if c.support > 1 else qp.chi2_gate_single):
+        if state is LockState.LOST:
+            gate = qp.recover_chi2_gate if qp.recover_chi2_gate > 0.0 else math.inf  # under the widened P
+        else:
+            gate = qp.chi2_gate if c.support > 1 else qp.chi2_gate_single
+        if nis > gate:
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
@@ -276,7 +280,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if state is LockState.LOST or held == "confirmed":  # relocalise: the candidate replaces the position
             tick.P = tick.P.copy()  # (the jump enters P)
             tick.P[:2, :2] += jump * jump * np.eye(2)
-        self._held = None
+        self._held = []
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
             self.fix_scale.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f0, s_l0))
@@ -296,12 +300,14 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
 
     def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float) -> str | None:
-        """Whether an answer that passed the weight and yaw gates needs a second one: None (no: the usual gates
-        decide), "hold" (kept, not applied) or "confirmed" (it implies the same correction z - x as the answer
-        held before it, to within confirm_agree_m plus confirm_agree_per_m of the distance driven since: apply
-        it as a relocalisation). Held: a recovery answer while lock is lost (recover_confirm), and an answer
-        that moves the estimate further than jump_confirm_k sqrt(lambda_max(P) + jump_confirm_floor_m^2), P the
-        prior position covariance (m^2): a jump the IMU track's own uncertainty does not allow."""
+        """Whether an answer that passed the weight, yaw and chi-square gates must be confirmed first: None (no:
+        apply it), "hold" (kept, not applied) or "confirmed" (it is the confirm_answers-th (lost) or
+        jump_confirm_answers-th (not lost; 0: never) answer implying the same correction z - x, to within
+        confirm_agree_m plus confirm_agree_per_m of the distance driven since the last of them, within
+        confirm_window_s: apply it as a relocalisation). Held: every recovery answer while lock is lost
+        (recover_confirm), and an answer that moves the estimate further than jump_confirm_k
+        sqrt(lambda_max(P) + jump_confirm_floor_m^2), P the prior position covariance (m^2): a jump the IMU
+        track's own uncertainty does not allow. Up to confirm_keep distinct held answers are kept side by side."""
         q = self.q
         if state is LockState.LOST:
             if not q.recover_confirm:
@@ -312,16 +318,21 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             lam = max(float(np.linalg.eigvalsh(P[:2, :2]).max()), 0.0)
             if jump <= q.jump_confirm_k * math.sqrt(lam + q.jump_confirm_floor_m**2):
                 return None
-        h = self._held
-        if h is not None and t - h[1] <= q.confirm_window_s:
-            moved = abs(self._odo - h[2])
-            if float(np.linalg.norm(innov - h[0])) <= q.confirm_agree_m + q.confirm_agree_per_m * moved:
-                if h[3] + 1 >= q.confirm_answers:
-                    self._held = None
-                    return "confirmed"
-                self._held = (np.array(innov, dtype=float), t, self._odo, h[3] + 1)
-                return "hold"
-        self._held = (np.array(innov, dtype=float), t, self._odo, 1)
+        held = [h for h in self._held if t - h[1] <= q.confirm_window_s]
+        near = [(float(np.linalg.norm(innov - h[0])) - q.confirm_agree_per_m * abs(self._odo - h[2]), i)
+                for i, h in enumerate(held)]
+        near = [(d, i) for d, i in near if d <= q.confirm_agree_m]
+        if near:
+            i = min(near)[1]
+            n = held[i][3] + 1
+            need = q.confirm_answers if state is LockState.LOST else q.jump_confirm_answers
+            if need > 0 and n >= need:
+                self._held = []
+                return "confirmed"
+            del held[i]
+        else:
+            n = 1
+        self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n)])[-q.confirm_keep:]
         return "hold"
 
     def _failed(self, reason: str, innovation_m: float) -> None:

@@ -98,7 +98,7 @@ class PlusParams:
     recover_interval_s: float = 0.5
     recover_w_min: float = 0.5
     confirm_fixes: int = 2
-    # a fix that moves the estimate further than the prior allows is held until a second answer agrees (docs)
+    # a fix that moves the estimate further than the prior allows is held until confirm_answers agree (config)
     jump_confirm_k: float = 0.0  # held when jump > k sqrt(lambda_max(P) + floor^2) (0: off)
     jump_confirm_floor_m: float = 2.0
     recover_confirm: bool = False  # a recovery (lock lost) candidate is held until a second one agrees
@@ -106,6 +106,9 @@ class PlusParams:
     confirm_agree_per_m: float = 0.05  # ... plus this fraction of the distance driven between their captures
     confirm_window_s: float = 10.0  # a held answer expires after this long
     confirm_answers: int = 2  # agreeing answers that confirm it (the held one included)
+    confirm_keep: int = 4  # held answers kept at once (the newest)
+    jump_confirm_answers: int = 0  # ... the same while not lost (a held jump); 0: never
+    recover_chi2_gate: float = 0.0  # recovery answers beyond this NIS under the widened P are refused (0: off)
 
 
 def n_states(p: PlusParams) -> int:
