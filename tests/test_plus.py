@@ -180,3 +180,15 @@ def test_variance_factor_is_half_the_mean_nis_of_the_fixes():
     for _ in range(100):
         vf.update(1e6)  # one sample is capped (50), the factor at hi
     assert vf.factor == pytest.approx(4.0)
+
+
+def test_variance_factor_ignores_a_non_finite_nis_and_resets_to_the_prior():
+    """A NaN NIS (from a non-finite P) must not poison the factor for good; a relocalisation forgets it."""
+    vf = VarianceFactor(lo=0.1, hi=4.0, window=20)
+    for _ in range(30):
+        vf.update(0.0)  # NIS 0 where 2 is honest: k falls to the clip
+    assert vf.factor == pytest.approx(0.1)
+    assert vf.update(float("nan")) == pytest.approx(vf.factor) and np.isfinite(vf.factor)
+    assert vf.update(float("inf")) == pytest.approx(vf.factor) and vf.n == 30
+    vf.reset()
+    assert vf.factor == 1.0 and vf.n == 0

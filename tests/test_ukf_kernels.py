@@ -196,3 +196,32 @@ def test_process_noise_plus_kernel_matches_numpy() -> None:
             want[3, 3] = p.q_speed_mps * p.q_speed_mps * dt
             want[4, 4] = p.q_bias_mps2 * p.q_bias_mps2 * dt
             assert np.array_equal(process_noise_plus(theta, dt, dist, p), want)
+
+
+def test_read_only_install_without_a_cache_folder_still_imports_and_runs(tmp_path):
+    """A read-only install in a service without a home folder (numba finds no cache folder): the kernels
+    compile without a cache instead of failing at import, with one warning naming NUMBA_CACHE_DIR."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import taco_mav
+
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare not available")
+    site, home = tmp_path / "site", tmp_path / "home"
+    home.mkdir()
+    shutil.copytree(Path(taco_mav.__file__).parent, site / "taco_mav",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    code = ("import logging; logging.basicConfig(); import numpy as np; import taco_mav.core.ukf_kernels as k; "
+            "print('cache', k._JIT['cache']); print('wrap', k.wrap(4.0))")
+    script = (f"mount --bind -o ro {tmp_path} {tmp_path} && cd / && "
+              f"HOME={home} NUMBA_CACHE_DIR= PYTHONPATH={site} {sys.executable} -c \"{code}\"")
+    proc = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True, timeout=300)
+    if "mount" in proc.stderr and proc.returncode != 0 and "cache" not in proc.stdout:
+        pytest.skip(f"cannot make a read-only mount here: {proc.stderr.strip()[:200]}")
+    assert proc.returncode == 0, proc.stderr
+    assert "cache False" in proc.stdout
+    assert abs(float(proc.stdout.split("wrap")[1]) - (4.0 - 2 * np.pi)) < 1e-12
+    assert "NUMBA_CACHE_DIR" in proc.stderr

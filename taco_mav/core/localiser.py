@@ -28,7 +28,7 @@ from taco_mav.core.preintegration import Increment, Preintegrator
 from taco_mav.core.search import (TriggerReason, best_candidate, cross_offsets, cross_spacing, fix_position,
                                   forward_bias, search_centres, trigger_reason)
 from taco_mav.core.smoother import FixNode, SmoothResult, smooth
-from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult
+from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
 
 
@@ -363,6 +363,13 @@ class Localiser(GnssFusion):
         x = self.ukf.x
         return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), float(self.pre.theta), float(self.pre.speed),
                         self.ukf.P[:2, :2].copy(), self._terms.epsilon, self.t - self._last_fix_t)
+
+    @property
+    def filter_sigma_h(self) -> float:
+        """The filter's own horizontal 1-sigma, metres (sqrt of the largest eigenvalue of P's position block),
+        before any calibration of the reported accuracy: what a new Localiser carrying this one on must start
+        from."""
+        return horizontal_sigma(self.ukf.P[:2, :2])
 
     @property
     def query_in_flight(self) -> bool:

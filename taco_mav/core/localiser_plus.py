@@ -364,6 +364,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if state is LockState.LOST:
             self.lock.on_relocalised(self.t, jump)
             self._floor_m = 0.5 * jump
+            self.report_factor.reset()  # what the fixes said of the old lock says nothing of the new one
         elif state is LockState.CONFIRMING:
             if jump <= 3.0 * max(s_f, s_l):
                 self.lock.on_accepted(self.t)
@@ -387,7 +388,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         x = self.ukf.x
         # The fixes' variance factor makes the reported accuracy honest while locked and while the safety guard
         # agrees; otherwise the filter's own (widened) covariance is reported as it is (issue 18).
-        if self.q.report_calibration and self.lock.state is LockState.LOCKED and not self._guard_flagged:
+        # Not while a real GNSS is fused: the factor is learnt from camera fixes and says nothing of the
+        # receiver's wander, which _gnss_apply keeps in P.
+        if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self._guard_flagged
+                and not self.gnss_in_use):
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
         lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
         if lo < self._report_floor_m**2:

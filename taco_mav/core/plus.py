@@ -233,11 +233,17 @@ class VarianceFactor:
     n: int = 0
 
     def update(self, nis: float) -> float:
-        """Add one accepted fix's NIS (2 dof); returns the new factor."""
+        """Add one accepted fix's NIS (2 dof); returns the new factor. A non-finite NIS is ignored."""
+        if not math.isfinite(nis):
+            return self.factor
         self.n += 1
         a = 1.0 / min(self.n + 1, self.window)
         self.k = (1.0 - a) * self.k + a * 0.5 * min(max(float(nis), 0.0), 50.0)
         return min(max(self.k, self.lo), self.hi)
+
+    def reset(self) -> None:
+        """Forget the learnt factor (back to the prior k = 1), e.g. after a relocalisation."""
+        self.k, self.n = 1.0, 0
 
     @property
     def factor(self) -> float:

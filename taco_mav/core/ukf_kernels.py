@@ -26,12 +26,33 @@ Frames and units as in ukf.py: x = [x m, y m, theta rad (ENU), (dv m/s, b m/s^2,
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numba
 import numpy as np
 
-_JIT = dict(cache=True, nogil=True)
+log = logging.getLogger(__name__)
+
+
+def _probe() -> int:
+    return 0
+
+
+def _cache_usable() -> bool:
+    """Whether numba finds a writable cache folder for this module (its __pycache__, NUMBA_CACHE_DIR or the
+    user's cache). Without one, numba raises at decoration time; a read-only install in a service without a
+    home folder then compiles at every start instead of failing to import."""
+    try:
+        numba.njit(cache=True)(_probe)
+    except RuntimeError as exc:
+        log.warning("numba has no writable cache folder (%s): the UKF kernels compile at every start "
+                    "(set NUMBA_CACHE_DIR to a writable folder to keep them)", exc)
+        return False
+    return True
+
+
+_JIT = dict(cache=_cache_usable(), nogil=True)
 
 
 @numba.njit(**_JIT)

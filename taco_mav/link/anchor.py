@@ -192,10 +192,11 @@ class Anchor:
 
     def restarted(self, loc: Localiser, attitude_yaw: float, t_new: float) -> Localiser:
         """After an autopilot reboot (its clock went back): a Localiser on the new clock at the current estimate,
-        keeping its 1-sigma."""
+        keeping its 1-sigma (the larger of the reported one and the filter's own, which a calibrated report can
+        undercut)."""
         est = loc.estimate()
         return self.localiser(t_new, attitude_yaw, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
-                              max(est.sigma_h, self.params.initial_sigma_xy_m))
+                              max(est.sigma_h, loc.filter_sigma_h, self.params.initial_sigma_xy_m))
 
     def carried(self, loc: Localiser, t_last: float, t_new: float) -> Carried:
         """No IMU from t_last to t_new: the estimate carried on at its speed and heading, its 1-sigma grown
@@ -204,5 +205,6 @@ class Anchor:
         speed = est.speed if math.isfinite(est.speed) else 0.0
         d = speed * (t_new - est.t)
         xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
-        sigma = max(stall_sigma(est.sigma_h, speed, t_new - t_last), self.params.initial_sigma_xy_m)
+        sigma = max(stall_sigma(max(est.sigma_h, loc.filter_sigma_h), speed, t_new - t_last),
+                    self.params.initial_sigma_xy_m)
         return Carried(xy, est.theta, speed, sigma, d)
