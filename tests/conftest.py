@@ -17,3 +17,19 @@ def kitti_root() -> Path:
     if not KITTI_ROOT.is_dir():
         pytest.skip(f"KITTI raw data not found at {KITTI_ROOT} (expected ../shared/data/kitti_raw beside the repo)")
     return KITTI_ROOT
+
+
+@pytest.fixture(autouse=True)
+def _cli_logging_left_behind():
+    """Tests that call the CLI in-process install its stderr handler on the root logger (as `main` does for a
+    user); remove it afterwards so later tests' log records stay in pytest's capture."""
+    import logging
+
+    from taco_mav.cli_support import TqdmHandler
+
+    root = logging.getLogger()
+    level = root.level
+    yield
+    for handler in [h for h in root.handlers if isinstance(h, TqdmHandler)]:
+        root.removeHandler(handler)
+    root.setLevel(level)
