@@ -339,3 +339,15 @@ def test_a_chance_peak_between_true_recovery_answers_does_not_reset_their_count(
     assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
     assert len(grids) <= 8  # true answers 1, 3, 5 confirm: not reset by the peaks between them
     assert loc.lock.state is LockState.LOCKED
+
+
+def test_held_recovery_answers_wait_for_a_slow_matcher():
+    """Review of issue 17: held answers expire after confirm_window_s between answers; a matcher slower than that
+    (a big recovery grid on a slow device: an answer 6 s after capture, the next grid 15 s later) must still be
+    able to confirm, so the window stretches to 3 answer latencies. A quick matcher's old answers still expire."""
+    P = np.eye(6)
+    innov = np.array([12.0, -5.0])
+    for latency, expect in ((6.0, "confirmed"), (0.5, "hold")):
+        loc = make_localiser(CONFIRM, 0.0)
+        out = [loc._hold(LockState.LOST, innov, 13.0, P, t, latency) for t in (20.0, 35.0, 50.0)]
+        assert out[:2] == ["hold", "hold"] and out[2] == expect, (latency, out)

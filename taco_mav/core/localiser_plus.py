@@ -272,7 +272,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
-        held = self._hold(state, innov, jump, tick.P, now)
+        held = self._hold(state, innov, jump, tick.P, now, now - q.capture_t)
         if held == "hold":
             self._failed("unconfirmed", jump)
             return self._log(FixOutcome(query_id, False, "unconfirmed", q.capture_t, now, k, z, psi[k], s_f, s_l, nis,
@@ -299,7 +299,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             self._reset_unaided()
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
 
-    def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float) -> str | None:
+    def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float,
+              latency_s: float = 0.0) -> str | None:
         """Whether an answer that passed the weight, yaw and chi-square gates must be confirmed first: None (no:
         apply it), "hold" (kept, not applied) or "confirmed" (it is the confirm_answers-th (lost) or
         jump_confirm_answers-th (not lost; 0: never) answer implying the same correction z - x, to within
@@ -307,7 +308,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         confirm_window_s: apply it as a relocalisation). Held: every recovery answer while lock is lost
         (recover_confirm), and an answer that moves the estimate further than jump_confirm_k
         sqrt(lambda_max(P) + jump_confirm_floor_m^2), P the prior position covariance (m^2): a jump the IMU
-        track's own uncertainty does not allow. Up to confirm_keep distinct held answers are kept side by side."""
+        track's own uncertainty does not allow. Up to confirm_keep distinct held answers are kept side by side.
+        The window stretches to 3 answer latencies (latency_s: arrival minus capture, s), so a matcher slower
+        than confirm_window_s per answer can still confirm."""
         q = self.q
         if state is LockState.LOST:
             if not q.recover_confirm:
@@ -318,7 +321,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             lam = max(float(np.linalg.eigvalsh(P[:2, :2]).max()), 0.0)
             if jump <= q.jump_confirm_k * math.sqrt(lam + q.jump_confirm_floor_m**2):
                 return None
-        held = [h for h in self._held if t - h[1] <= q.confirm_window_s]
+        window = max(q.confirm_window_s, 3.0 * max(latency_s, 0.0))
+        held = [h for h in self._held if t - h[1] <= window]
         near = [(float(np.linalg.norm(innov - h[0])) - q.confirm_agree_per_m * abs(self._odo - h[2]), i)
                 for i, h in enumerate(held)]
         near = [(d, i) for d, i in near if d <= q.confirm_agree_m]
