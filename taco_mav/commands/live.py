@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 from pathlib import Path
-from typing import Any
 
 from taco_mav import checks
 from taco_mav.cli_support import EXIT_INTERRUPTED
@@ -69,7 +67,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.log_dir:
         checks.output_dir(args.log_dir, "--log-dir", create=False)
     from taco_mav.datasets.synthetic import register_world_camera
-    from taco_mav.link.daemon import Daemon, DaemonOptions  # the heavy import, after every check
+    from taco_mav.link.daemon import DaemonOptions, run_daemon  # the heavy import, after every check
 
     register_world_camera()  # --camera world:DIR (camera.open_camera's registry; link never imports datasets)
 
@@ -80,21 +78,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     opts = DaemonOptions(connect=args.connect, camera=args.camera, map_path=Path(args.map) if args.map else None,
                          log_dir=log_dir, origin=origin, estimator=estimator,
                          matcher_latency_s=args.matcher_latency, signing_key=signing)
-    daemon = Daemon(profile, opts)
-    received: list[int] = []
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        received.append(signum)
-        daemon.stop()
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        rc = daemon.run()
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-    # SIGTERM (systemd's stop) is a clean stop, 0; Ctrl-C is the same clean stop, reported as 130
-    return EXIT_INTERRUPTED if signal.SIGINT in received else rc
+    return run_daemon(profile, opts)  # SIGTERM: a clean stop, 0; Ctrl-C: the same stop, 130
 
 
 def cmd_sim(args: argparse.Namespace) -> int:

@@ -240,14 +240,23 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
 
 
 def run_daemon(profile: Profile, options: DaemonOptions) -> int:
-    """Run the daemon in this thread until SIGINT/SIGTERM; returns the exit code (0 on a clean stop)."""
+    """Run the daemon in this thread until SIGINT/SIGTERM; returns the exit code: the daemon's own (0 on a clean
+    stop) after SIGTERM (systemd's stop), 128 + SIGINT = 130 after Ctrl-C (the same clean stop, reported as a
+    shell reports an interrupt)."""
     daemon = Daemon(profile, options)
+    received: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        received.append(signum)
+        daemon.stop()
+
     previous: dict[int, Any] = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: daemon.stop())
+            previous[sig] = signal.signal(sig, on_signal)
     try:
-        return daemon.run()
+        rc = daemon.run()
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    return 128 + signal.SIGINT if signal.SIGINT in received else rc
