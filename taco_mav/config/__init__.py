@@ -28,12 +28,12 @@ from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profil
 from taco_mav.config.paper import (ErrorModelConfig, GateConfig, ImuConfig, LatencyConfig, SmootherConfig,
                                    TriggerConfig, UkfConfig)
 from taco_mav.config.plus import GnssConfig, PlusConfig
-from taco_mav.config.profile import (MATCHERS, Profile, camera_lever_fwd_left, localiser_params, profile_to_dict,
+from taco_mav.config.profile import (MATCHERS, Profile, frd_fwd_left, localiser_params, profile_to_dict,
                                      replace_in)
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
 
 __all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "ClassicalMatcherConfig",
            "EmulatorConfig", "ErrorModelConfig", "Estimator", "Fg2Config", "GateConfig", "GnssConfig", "ImuConfig",
            "LatencyConfig", "LinkConfig", "MapConfig", "OutputConfig", "PlusConfig", "Profile", "SmootherConfig",
-           "TriggerConfig", "UkfConfig", "bounded", "camera_lever_fwd_left", "load_profile", "localiser_params",
+           "TriggerConfig", "UkfConfig", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
            "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path", "shipped_profiles"]

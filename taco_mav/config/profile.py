@@ -17,7 +17,7 @@ from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, Emulat
 if TYPE_CHECKING:
     from taco_mav.core.params import LocaliserParams
 
-__all__ = ["MATCHERS", "Profile", "camera_lever_fwd_left", "localiser_params", "profile_to_dict", "replace_in"]
+__all__ = ["MATCHERS", "Profile", "frd_fwd_left", "localiser_params", "profile_to_dict", "replace_in"]
 
 # The matcher names a profile may give (cvgl/registry.py builds them).
 MATCHERS: tuple[str, ...] = ("classical", "emulator", "fg2")
@@ -67,8 +67,9 @@ def profile_to_dict(obj: Any) -> Any:
     return obj
 
 
-def camera_lever_fwd_left(position_frd_m: tuple[float, float, float]) -> tuple[float, float]:
-    """Body FRD [x forward, y right, z down] metres -> the horizontal (forward, left) metres the core uses."""
+def frd_fwd_left(position_frd_m: tuple[float, float, float]) -> tuple[float, float]:
+    """Body FRD [x forward, y right, z down] metres (a profile's camera.position_frd_m, output.antenna_frd_m) ->
+    the horizontal (forward, left) metres the core uses."""
     return float(position_frd_m[0]), -float(position_frd_m[1])
 
 
@@ -87,7 +88,7 @@ def localiser_params(profile: Profile) -> "LocaliserParams":
         error_cross_k=em.cross_k, error_along_k=em.along_k, error_divergence_k=em.divergence_k,
         trigger_epsilon_m=tr.epsilon_m, trigger_time_s=tr.time_s, forward_bias=tr.forward_bias,
         forward_bias_k=tr.forward_bias_k, forward_bias_cap_m=tr.forward_bias_cap_m, multi_crop=tr.multi_crop,
-        camera_lever_fwd_left_m=camera_lever_fwd_left(profile.camera.position_frd_m),
+        camera_lever_fwd_left_m=frd_fwd_left(profile.camera.position_frd_m),
         search_cross_k=tr.cross_k, cross_cap_m=tr.cross_cap_m, query_timeout_s=tr.query_timeout_s,
         yaw_gate=gate.enabled, yaw_residual_max_rad=gate.yaw_residual_max_rad,
         ukf_alpha=ukf.alpha, ukf_beta=ukf.beta, ukf_kappa=ukf.kappa,

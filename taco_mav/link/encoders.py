@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.config import OutputConfig
+from taco_mav.config import OutputConfig, frd_fwd_left
 from taco_mav.core.search import body_to_world
 from taco_mav.core.types import Estimate
 from taco_mav.geo import UtmProjector, gps_week_ms, utm_epsg_for
@@ -96,9 +96,9 @@ def _f(value: float, fallback: float) -> float:
 
 def antenna_point(xy: np.ndarray, theta: float, antenna_frd_m: tuple[float, float, float]) -> np.ndarray:
     """The autopilot's antenna point, ENU metres: the estimate's reference point `xy` plus the antenna's body
-    offset (FRD [x forward, y right, z down] metres; horizontal part (x, -y) as (forward, left)) rotated by the
-    grid heading theta (ENU rad)."""
-    return np.asarray(xy, dtype=float) + body_to_world(theta, np.array([antenna_frd_m[0], -antenna_frd_m[1]]))
+    offset (FRD [x forward, y right, z down] metres; its horizontal part as (forward, left), `frd_fwd_left`)
+    rotated by the grid heading theta (ENU rad)."""
+    return np.asarray(xy, dtype=float) + body_to_world(theta, np.array(frd_fwd_left(antenna_frd_m)))
 
 
 def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) -> NavSolution:
