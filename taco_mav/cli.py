@@ -16,10 +16,13 @@ from taco_mav import checks
 from taco_mav.bench import SECTION_NAMES
 from taco_mav.cli_support import TacoArgumentParser, add_global_flags, configure_logging, package_version, run_command
 from taco_mav.commands import live, offline
+from taco_mav.config.fields import Estimator
 from taco_mav.config.profile import MATCHERS
 
-ESTIMATORS = ("paper", "taco+")  # taco_mav.config.Estimator values (tests/test_cli.py checks they agree)
-IMU_PRESETS = ("automotive", "rt3003", "none")  # taco_mav.datasets.synthetic.imu_model.PRESETS
+ESTIMATORS = tuple(e.value for e in Estimator)
+# taco_mav.datasets.synthetic.imu_model.PRESETS, written out so that parsing does not import scipy.signal
+# (tests/test_cli.py checks they agree)
+IMU_PRESETS = ("automotive", "rt3003", "none")
 
 
 def _force(p: argparse.ArgumentParser, what: str) -> None:
