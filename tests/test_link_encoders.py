@@ -16,7 +16,7 @@ from taco_mav.config import OutputConfig  # noqa: E402
 from taco_mav.core.types import Estimate  # noqa: E402
 from taco_mav.link import encoders  # noqa: E402
 
-CFG = OutputConfig()
+CFG = OutputConfig(send_yaw=True)  # the yaw tests need it sent (off by default)
 ORIGIN = encoders.Origin.from_latlon(49.0, 8.4, 115.0)
 
 
@@ -70,6 +70,13 @@ def test_gps_input_fields_and_units() -> None:
     assert msg.speed_accuracy == pytest.approx(0.3)
     assert msg.ignore_flags == (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT | mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
                                 | mavlink.GPS_INPUT_IGNORE_FLAG_VDOP)
+
+
+def test_gps_input_sends_no_yaw_by_default() -> None:
+    """Off by default: the heading is the autopilot's own compass, so GPS_INPUT.yaw is 0 ("no yaw")."""
+    sol = encoders.solution(est(theta=0.3, speed=2.0), ORIGIN, OutputConfig(), healthy=True)
+    assert roundtrip(lambda mav: encoders.gps_input(mav, sol, OutputConfig(), 1.7e9)).yaw == 0
+    assert roundtrip(lambda mav: encoders.gps_input(mav, sol, CFG, 1.7e9)).yaw != 0
 
 
 def test_gps_input_heading_east_uses_convergence() -> None:

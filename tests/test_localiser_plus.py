@@ -224,6 +224,39 @@ def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_so
     assert 9.0 <= at(after[0]) - at(missed[0]) <= 12.0  # retried after ~10 m
 
 
+def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
+    """Issue 18: with defer_w, a consensus answer weaker than it is not used while the filter is healthy (reason
+    'deferred': neither a fix nor a failure), the query is asked again defer_retry_m on, and after defer_max
+    deferrals in a row the weak answer is taken; with defer_w 0 it is taken at once."""
+    d = _drive()
+    odo = np.concatenate([[0.0], np.cumsum(d.speed[1:] * np.diff(d.t))])
+    at = lambda t: float(np.interp(t, d.t, odo))  # noqa: E731
+    base = dataclasses.replace(PLUS.plus, trigger_distance_m=40.0, trigger_sigma_m=1e9, defer_max=2,
+                               defer_retry_m=2.0, defer_span_m=20.0)
+
+    def weak_after_60(q):  # from 60 s on, a weak (w 0.4) answer at the true position
+        if q.capture_t > 60.0:
+            return answers_at(q, np.array(d.pose_at(q.capture_t)[:2]), w=0.4)
+        return OracleMatcher(d, seed=2).answer(q)
+
+    for defer_w, expect in ((0.0, ["accepted"]), (0.6, ["deferred", "deferred", "accepted"])):
+        params = dataclasses.replace(PLUS, plus=dataclasses.replace(base, defer_w=defer_w))
+        loc, err, _ = run_plus(d, params=params, planted=weak_after_60)
+        after = [o for o in loc.outcomes if o.capture_t > 60.0]
+        assert [o.reason for o in after[:len(expect)]] == expect
+        if defer_w:
+            gaps = np.diff([at(o.capture_t) for o in after[:3]])
+            # asked again 2 m on, or after recover_interval_s (0.5 s, 5 m here) when that is later; not 10 m
+            assert np.all((gaps >= 1.5) & (gaps <= 6.0))
+            # the next query waits for the distance trigger again (40 m after the accepted one)
+            assert at(after[3].capture_t) - at(after[2].capture_t) > 30.0
+        assert loc.lock.losses == 0 and _rms(err) < 1.5
+    # an unhealthy filter (prior 1-sigma at the covariance trigger) takes the weak answer at once
+    params = dataclasses.replace(PLUS, plus=dataclasses.replace(base, defer_w=0.6, trigger_sigma_m=0.01))
+    loc, _, _ = run_plus(d, params=params, planted=weak_after_60)
+    assert not any(o.reason == "deferred" for o in loc.outcomes)
+
+
 CONFIRM = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=2.0, recover_confirm=True,
                                                              confirm_answers=3))
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from taco_mav.core.lock import LockMonitor, LockState
-from taco_mav.core.plus import (FixNoiseScale, PlusParams, VarianceFactor, bias_decay, consensus, cross_arm, grid_rings,
-                                hex_offsets, process_noise_plus)
+from taco_mav.core.plus import (FixNoiseScale, PlusParams, VarianceFactor, bias_decay, consensus, cross_arm,
+                                defer_answer, grid_rings, hex_offsets, process_noise_plus)
 from taco_mav.core.stationary import StationaryDetector
 from taco_mav.core.ukf import PlanarUkf
 
@@ -192,3 +192,18 @@ def test_variance_factor_ignores_a_non_finite_nis_and_resets_to_the_prior():
     assert vf.update(float("inf")) == pytest.approx(vf.factor) and vf.n == 30
     vf.reset()
     assert vf.factor == 1.0 and vf.n == 0
+
+
+def test_defer_answer_only_a_weak_answer_while_healthy_and_within_its_limits():
+    """Issue 18: a weak answer is deferred only below defer_w, while healthy (locked, guard quiet, prior 1-sigma
+    below trigger_sigma_m), fewer than defer_max times in a row and within trigger_distance_m + defer_span_m."""
+    p = PlusParams(defer_w=0.6, defer_max=2, trigger_sigma_m=3.0, trigger_distance_m=40.0, defer_span_m=20.0)
+    ok = dict(deferred=0, healthy=True, sigma_h=1.0, since_fix_m=45.0, p=p)
+    assert defer_answer(0.4, **ok)
+    assert not defer_answer(0.6, **ok)  # strong enough
+    assert not defer_answer(0.4, **{**ok, "deferred": 2})  # defer_max reached: take it
+    assert not defer_answer(0.4, **{**ok, "healthy": False})
+    assert not defer_answer(0.4, **{**ok, "sigma_h": 3.0})  # the covariance trigger's uncertainty
+    assert not defer_answer(0.4, **{**ok, "since_fix_m": 60.0})  # 40 + 20 m driven since the last fix
+    assert defer_answer(0.4, **{**ok, "since_fix_m": 600.0, "p": PlusParams(defer_w=0.6, defer_span_m=0.0)})
+    assert not defer_answer(0.1, **{**ok, "p": PlusParams()})  # off by default

@@ -55,7 +55,10 @@ class OutputConfig:
     recover_accuracy_m: float = field(default=8.0, metadata=bounded(0.0, open_lo=True))
     stall_s: float = field(default=0.5, metadata=bounded(0.0, open_lo=True))  # no IMU this long: fix_type 1
     vertical_accuracy_m: float = field(default=5.0, metadata=bounded(0.0, open_lo=True))  # reported epv (flat ground)
-    send_yaw: bool = True  # GPS_INPUT.yaw from the compass heading (36000 = north)
+    # GPS_INPUT.yaw (36000 = north). Off: our heading is the autopilot's own compass/AHRS heading, so as a "GPS
+    # yaw" it tells the EKF nothing new (EK3_SRC1_YAW=2/3 would loop its compass back, docs/ardupilot.md), and a
+    # receiver that sends none is scored on positions alone (sim/score.py). On: for a display that wants it.
+    send_yaw: bool = False
     leap_seconds: int = field(default=18, metadata=bounded(0, 60))  # GPS - UTC for time_week/time_week_ms
     statustext_interval_s: float = field(default=5.0, metadata=bounded(0.0))  # rate limit of fix STATUSTEXTs
     # GLOBAL_POSITION_SENSOR target (PX4): 0 = the autopilot's sysid / broadcast component.

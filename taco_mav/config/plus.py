@@ -71,6 +71,19 @@ class PlusConfig:
     # retried after trigger_retry_m (a miss is not counted in fixes/km, so it is not budget).
     trigger_distance_m: float = field(default=0.0, metadata=bounded(0.0))
     trigger_retry_m: float = field(default=10.0, metadata=bounded(0.0))
+    # Deferred weak answers (issue 18): while the filter is healthy (locked, the safety guard quiet, its prior
+    # 1-sigma below trigger_sigma_m), a consensus answer weaker than defer_w is not consumed; the query is asked
+    # again defer_retry_m further on, at most defer_max times in a row (then the answer is taken as it is). The
+    # filter's prior keeps a process-noise margin (3-5x the true error on KITTI), so it takes a weak answer
+    # (FG2 cross-area: ~2.4 m off at w 0.2-0.4, 0.4 m above 0.8) almost at face value, position and speed; the
+    # next frames a few metres on give fresh answers. A deferral is neither a fix (fixes/km) nor a failure (loss
+    # of lock). 0: off (the kitti profile: 0.6).
+    defer_w: float = field(default=0.0, metadata=bounded(0.0, 1.0))
+    defer_max: int = field(default=2, metadata=bounded(0))
+    defer_retry_m: float = field(default=2.0, metadata=bounded(0.0))
+    # ... and only while fewer than trigger_distance_m + defer_span_m were driven since the last accepted fix: a
+    # late answer makes each deferral cost its latency in dead reckoning (0: no limit)
+    defer_span_m: float = field(default=20.0, metadata=bounded(0.0))
     cross_k: float = field(default=2.0, metadata=bounded(0.0))  # cross arm = clip(k sigma_h, min, max)
     cross_min_m: float = field(default=1.0, metadata=bounded(0.0))
     cross_max_m: float = field(default=10.0, metadata=bounded(0.0))

@@ -35,7 +35,8 @@ class CameraSpeedMixin:
         body axes (metres, 1-sigma metres), as a speed measurement of the speed error x[3] at the middle of the
         interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
         second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
-        99.9 %), and three in a row make a zero-velocity update since the last fix suspect. Returns "used",
+        99.9 %), and three in a row, when the IMU alone sides with the camera, make a zero-velocity update
+        since the last fix suspect and open the speed variance (`_camera_sides_with_imu`). Returns "used",
         "gated", "lateral" (sideways motion: a heading change the compass got wrong), "stale" (its frames are
         older than the history) or "invalid"."""
         dt = t1 - t0
@@ -58,7 +59,7 @@ class CameraSpeedMixin:
         P33 = float(self.ukf.P[3, 3])
         if z * z > 10.83 * (P33 + var):
             self._camera_gated += 1
-            if self._camera_gated >= 3:
+            if self._camera_gated >= 3 and self._camera_sides_with_imu(v_cam, v_est):
                 self._distrust_zupt()
                 self._speed_variance_at_least(z * z)
             return "gated"
@@ -73,6 +74,17 @@ class CameraSpeedMixin:
             self._feedback(self._history[-1])
         self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
         return "used"
+
+    def _camera_sides_with_imu(self, v_cam: float, v_est: float) -> bool:
+        """Whether, when the camera and the filter keep disagreeing, the IMU alone (the unaided track since the
+        last fix) is nearer the camera's speed than the filter's: then the filter lost the motion (a stop taken
+        for a cruise or the reverse) and its speed variance is raised so the camera can correct it. Otherwise the
+        camera is the one that is wrong (a lead car, a repeating road marking locked onto) and stays gated.
+        Without an unaided track, the camera is given the benefit of the doubt."""
+        if not self.unaided.started:
+            return True
+        v_imu = float(self.unaided.v)
+        return abs(v_cam - v_imu) < abs(v_est - v_imu)
 
     def add_gnss(self, fix: GnssFix) -> GnssOutcome:
         """As GnssFusion.add_gnss; the reading's ground speed also goes to the camera-speed check."""

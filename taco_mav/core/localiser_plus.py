@@ -24,8 +24,9 @@ from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, grid_rings, hex_offsets, n_states,
-                                process_noise_plus)
+from taco_mav.core.map_offset import MapOffset
+from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, defer_answer,
+                                grid_rings, hex_offsets, n_states, process_noise_plus)
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.safety_guard import SafetyGuardMixin
 from taco_mav.core.search import cross_offsets, fix_position
@@ -78,9 +79,11 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
         self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window)
         self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
+        self.map_offset = MapOffset(params.map_offset)  # the map's georeferencing offset (core/map_offset.py)
         self._odo = 0.0  # distance travelled, metres (new frames only)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
+        self._deferred = 0  # weak answers deferred in a row (defer_w)
         # held answers (jump_confirm_k, recover_confirm), newest last: (the correction z - x at capture (ENU m),
         # arrival t of the latest agreeing answer, odometer then, answers that agreed so far)
         self._held: list[tuple[np.ndarray, float, float, int]] = []
@@ -188,8 +191,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             return self._planned("confirm", arm)
         if self._gnss_handover():
             return self._planned("handover", arm)
+        retry = q.defer_retry_m if self._deferred else q.trigger_retry_m
         if (q.trigger_distance_m > 0.0 and self._odo - self._odo_at_fix >= q.trigger_distance_m
-                and self._odo - self._odo_at_query >= q.trigger_retry_m):
+                and self._odo - self._odo_at_query >= retry):
             return self._planned("distance", arm)
         if sig >= q.trigger_sigma_m:
             return self._planned("covariance", arm)
@@ -242,6 +246,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             if r is not None:
                 xy[k] = fix_position(q.crop_centres[k], q.heading, r.t, p.camera_lever_fwd_left_m)
                 psi[k] = yaw_residual(r.R)
+        xy = self.map_offset.correct(xy)  # map frame -> world frame
         w = np.array(weights)
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
         with np.errstate(invalid="ignore"):
@@ -257,12 +262,16 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         tick = self._capture_tick(q)
         if tick is None:
             return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
+        if self._defer(c.weight, tick.P):  # weak, and the filter can wait for a better one: ask again
+            return self._log(FixOutcome(query_id, False, "deferred", q.capture_t, now, k, z, psi[k], weights=weights))
         s_f0, s_l0 = self._fix_sigmas(c.weight)  # the matcher's w mapped as in the paper
         sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
         s_f, s_l = sc * s_f0, sc * s_l0
         innov = z - tick.x[:2]
         jump = float(np.linalg.norm(innov))
-        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
+        mv = self.map_offset.fix_variance()  # the fix also carries the map offset's remaining error
+        s_fo, s_lo = math.sqrt(s_f * s_f + mv), math.sqrt(s_l * s_l + mv)
+        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_fo, s_lo), innov))
         state = self.lock.state
         if state is LockState.LOST:
             gate = qp.recover_chi2_gate if qp.recover_chi2_gate > 0.0 else math.inf  # under the widened P
@@ -283,8 +292,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._held = []
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
-            self.fix_scale.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f0, s_l0))
-        self._fuse(tick, z, s_f, s_l)
+            self.fix_scale.update(innov, tick.P[:2, :2] + mv * np.eye(2), fix_covariance(float(tick.x[2]), s_f0, s_l0))
+        # the map offset's share of this fix (core/map_offset.py; not from a relocalisation's jump)
+        self.map_offset.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f, s_l), learn=learn)
+        self._fuse(tick, z, s_fo, s_lo)
         self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
         if learn:
             self.report_factor.update(nis)
@@ -292,12 +303,20 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._settle_lock(LockState.LOST if held == "confirmed" else state, jump, s_f, s_l)
         if self._history:
             self._feedback(self._history[-1])
-        self._gate_misses = self._misses_in_row = 0
+        self._gate_misses = self._misses_in_row = self._deferred = 0
         self._report_floor_m = 0.0
         self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
         if self.q.guard:
             self._reset_unaided()
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
+
+    def _defer(self, w: float, P: np.ndarray) -> bool:
+        """Whether to leave a weak answer (consensus weight w) unused and ask again (plus.defer_answer)."""
+        healthy = self.lock.state is LockState.LOCKED and not self._guard_flagged
+        if defer_answer(w, self._deferred, healthy, horizontal_sigma(P), self._odo - self._odo_at_fix, self.q):
+            self._deferred += 1
+            return True
+        return False
 
     def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float,
               latency_s: float = 0.0) -> str | None:
@@ -397,11 +416,14 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self._guard_flagged
                 and not self.gnss_in_use):
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
+        if self.map_offset.fixes_applied:  # the map's offset error is common to every fix (core/map_offset.py)
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + self.map_offset.report_cov())
         lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
         if lo < self._report_floor_m**2:
             est = dataclasses.replace(est, cov_xy=est.cov_xy + (self._report_floor_m**2 - lo) * np.eye(2))
         est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
                          compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
+                         map_offset=[float(v) for v in self.map_offset.b],
                          stationary=self._zupt)
         return est
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from taco_mav.core.gnss_guard import GnssParams
+from taco_mav.core.map_offset import MapOffsetParams
 from taco_mav.core.plus import PlusParams
 from taco_mav.core.smoother import SmootherParams
 
@@ -61,6 +62,8 @@ class LocaliserParams:
     history_s: float = 10.0
     # smoother (Sec. III-G)
     smoother: SmootherParams = field(default_factory=SmootherParams)
+    # the map's georeferencing offset, calibrated by taco+ (profile map.georef_sigma_m; 0: off)
+    map_offset: MapOffsetParams = field(default_factory=MapOffsetParams)
     # taco+ (issue 7): None = paper mode
     plus: PlusParams | None = None
     # real GNSS while it is honest, and the spoofing/jamming guard (issue 14)

@@ -69,6 +69,10 @@ class PlusParams:
     trigger_time_s: float = 10.0
     trigger_distance_m: float = 0.0  # also ask once this many metres passed since the last accepted fix (0: off)
     trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
+    defer_w: float = 0.0  # a weaker consensus answer is deferred while the filter is healthy (0: off)
+    defer_max: int = 2  # ... at most this many times in a row
+    defer_retry_m: float = 2.0  # ... and asked again this many metres on
+    defer_span_m: float = 20.0  # ... while less than trigger_distance_m + this since the last fix (0: no limit)
     cross_k: float = 2.0  # cross arm = clip(k sigma_h, min, max)
     cross_min_m: float = 1.0
     cross_max_m: float = 10.0
@@ -129,6 +133,15 @@ def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams) 
     q55 = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2) if n == 6 else 0.0
     return _kernels.process_noise_plus(float(theta), float(dt), float(distance), n, q55, p.q_pos_mps, p.q_fwd_per_m,
                                        p.q_lat_per_m, p.q_theta_rad, p.q_speed_mps, p.q_bias_mps2)  # compiled
+
+
+def defer_answer(w: float, deferred: int, healthy: bool, sigma_h: float, since_fix_m: float, p: PlusParams) -> bool:
+    """Issue 18: leave a weak answer unused and ask again? Yes when its consensus weight w is below defer_w, fewer
+    than defer_max answers were deferred in a row (`deferred`), the filter is healthy (locked, the safety guard
+    quiet) with its prior 1-sigma sigma_h (m) below trigger_sigma_m, and fewer than trigger_distance_m +
+    defer_span_m metres were driven since the last accepted fix (since_fix_m; defer_span_m 0: no limit)."""
+    return (w < p.defer_w and deferred < p.defer_max and healthy and sigma_h < p.trigger_sigma_m
+            and (p.defer_span_m <= 0.0 or since_fix_m < p.trigger_distance_m + p.defer_span_m))
 
 
 def cross_arm(sigma_h: float, p: PlusParams) -> float:

@@ -34,6 +34,8 @@ ABLATIONS: dict[str, dict[str, Any]] = {
     "no_distance_trigger": {"plus.trigger_distance_m": 0.0},
     "no_report_calibration": {"plus.report_calibration": False},
     "w_weighted_consensus": {"plus.consensus_weight_power": 1.0},
+    "no_deferral": {"plus.defer_w": 0.0},
+    "no_map_offset": {"map.georef_sigma_m": 0.0},
 }
 
 

@@ -175,7 +175,8 @@ ABLATION_LABELS = {"full": "TACO (full)", "no_yaw_gate": "- no yaw-residual gate
                    "ukf_only": "- no Pose2 smoother (UKF only)",
                    "no_distance_trigger": "- taco+: no distance trigger (covariance and time only)",
                    "no_report_calibration": "- taco+: reported accuracy = filter covariance",
-                   "w_weighted_consensus": "- taco+: crop answers averaged by w (not w^2)"}
+                   "w_weighted_consensus": "- taco+: crop answers averaged by w (not w^2)",
+                   "no_deferral": "- taco+: weak answers used at once (not deferred)"}
 
 
 def ablation_md(ablations: dict[str, dict[str, Any]]) -> str:
