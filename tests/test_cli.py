@@ -115,11 +115,13 @@ def test_negative_option_values_parse(argv: list[str], attr: str, value: object)
 
 
 def test_world_in_the_southern_hemisphere(tmp_path: Path) -> None:
-    """`world --centre -35.36,149.17` (no '=') builds a world there: UTM zone 55 south."""
+    """`world --centre -35.36,149.17` (no '=') builds a world there: UTM zone 55 south; 3-D by default (an
+    aerial map with its georeferencing offset)."""
     assert cli.main(["world", "-q", "--out", str(tmp_path / "w"), "--centre", "-35.363261,149.165230",
                      "--length-km", "0.06"]) == 0
     meta = json.loads((tmp_path / "w" / "world.json").read_text())
     assert meta["centre"] == [-35.363261, 149.165230] and meta["crs_epsg"] == 32755
+    assert 0.8 <= math.hypot(*meta["aerial"]["georef_offset_m"]) <= 1.2
 
 
 def test_names_agree_with_the_library() -> None:
@@ -137,12 +139,13 @@ def test_names_agree_with_the_library() -> None:
 
 def test_world_refuses_an_existing_world_unless_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "w"
-    assert cli.main(["world", "-q", "--out", str(out), "--seed", "1", "--length-km", "0.06"]) == 0
+    flat = ["--realism", "flat", "--length-km", "0.06"]
+    assert cli.main(["world", "-q", "--out", str(out), "--seed", "1", *flat]) == 0
     before = (out / "world.json").read_text()
-    assert cli.main(["world", "-q", "--out", str(out), "--seed", "2", "--length-km", "0.06"]) == 2
+    assert cli.main(["world", "-q", "--out", str(out), "--seed", "2", *flat]) == 2
     assert f"--out {out}: already holds world.json" in capsys.readouterr().err
     assert (out / "world.json").read_text() == before
-    assert cli.main(["world", "-q", "--out", str(out), "--seed", "2", "--length-km", "0.06", "--force"]) == 0
+    assert cli.main(["world", "-q", "--out", str(out), "--seed", "2", *flat, "--force"]) == 0
     assert json.loads((out / "world.json").read_text())["seed"] == 2
 
 

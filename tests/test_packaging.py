@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "synthetic")
+SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "synthetic", "synthetic_3d")
 
 pytestmark = pytest.mark.slow
 

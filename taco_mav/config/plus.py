@@ -71,6 +71,11 @@ class PlusConfig:
     # retried after trigger_retry_m (a miss is not counted in fixes/km, so it is not budget).
     trigger_distance_m: float = field(default=0.0, metadata=bounded(0.0))
     trigger_retry_m: float = field(default=10.0, metadata=bounded(0.0))
+    # Map trigger: with the map's offset modelled (map.georef_sigma_m > 0), a fix is asked while the position is
+    # known better than map_trigger_ratio times the offset's smallest 1-sigma (the start, a precise GNSS): such a
+    # fix teaches the offset. The first at once, then one every map_trigger_m metres while it lasts.
+    map_trigger_ratio: float = field(default=0.5, metadata=bounded(0.0))
+    map_trigger_m: float = field(default=3.0, metadata=bounded(0.0))
     # Deferred weak answers (issue 18): while the filter is healthy (locked, the safety guard quiet, its prior
     # 1-sigma below trigger_sigma_m), a consensus answer weaker than defer_w is not consumed; the query is asked
     # again defer_retry_m further on, at most defer_max times in a row (then the answer is taken as it is). The
@@ -103,6 +108,10 @@ class PlusConfig:
     fix_scale_min: float = field(default=0.3, metadata=bounded(0.0, open_lo=True))
     fix_scale_max: float = field(default=2.0, metadata=bounded(0.0, open_lo=True))
     fix_scale_window: int = field(default=10, metadata=bounded(1))
+    # The scale before any fix has taught one (1: the mapping as it is). A matcher whose calibration is known
+    # (the classical matcher on 3-D worlds settles at 0.34-0.40) starts there, so the first fixes, the ones
+    # near the start that teach the map's offset, are not discarded as 3x too noisy.
+    fix_scale_initial: float = field(default=1.0, metadata=bounded(0.0, open_lo=True))
     # Reported accuracy (issue 18): the filter's position covariance times the a-posteriori variance factor of the
     # accepted fixes (mean NIS / 2 over report_window fixes, clipped to [report_factor_min, report_factor_max]).
     # The filter keeps its process-noise margin (it tracks better with it); what it reports is made honest (while

@@ -77,7 +77,6 @@ def localiser_params(profile: Profile) -> "LocaliserParams":
     """The plain values the core Localiser takes, from a profile (core never sees the Profile itself)."""
     from taco_mav.core.gnss_guard import GnssParams
     from taco_mav.core.params import LocaliserParams
-    from taco_mav.core.map_offset import MapOffsetParams
     from taco_mav.core.plus import PlusParams
     from taco_mav.core.smoother import SmootherParams
 
@@ -107,7 +106,7 @@ def localiser_params(profile: Profile) -> "LocaliserParams":
             lm_max_iterations=sm.lm_max_iterations, lm_relative_tolerance=sm.lm_relative_tolerance,
             savgol_window=sm.savgol_window, savgol_order=sm.savgol_order),
         gnss=GnssParams(**{f.name: getattr(profile.gnss, f.name) for f in dataclasses.fields(GnssConfig)}),
-        map_offset=MapOffsetParams(georef_sigma_m=profile.map.georef_sigma_m),
+        map_georef_sigma_m=profile.map.georef_sigma_m,
         plus=(PlusParams(**{f.name: getattr(profile.plus, f.name) for f in dataclasses.fields(PlusConfig)})
               if profile.estimator is Estimator.TACO_PLUS else None),
     )

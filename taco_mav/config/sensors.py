@@ -51,9 +51,10 @@ class MapConfig:
     # A matcher call running longer (wall s) is cancelled, counted, and its worker replaced.
     matcher_timeout_s: float = field(default=10.0, metadata=bounded(0.0, open_lo=True))
     # The mosaic's georeferencing 1-sigma per axis, m: real orthophotos are off by about a metre. taco+ then
-    # learns the offset from fixes while the position is anchored tighter than that (a surveyed start, a
-    # precise GNSS), corrects later fixes by it and reports its uncertainty (core/map_offset.py; 0: the map is
-    # taken as exact, as in the paper). Not in the paper.
+    # carries the offset as two filter states that every fix reads (fix = position + offset): it is learnt
+    # while the position is anchored tighter than that (the start, a precise GNSS), and its uncertainty stays
+    # in the reported accuracy (docs/taco_plus.md, "The map's offset"; 0: the map is taken as exact, as in
+    # the paper). Not in the paper.
     georef_sigma_m: float = field(default=0.0, metadata=bounded(0.0, 20.0))
 
 

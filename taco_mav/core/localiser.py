@@ -212,7 +212,7 @@ class Localiser(GnssFusion):
             return
         reason, bias, offsets = plan
         theta = float(self.pre.theta)
-        centre, crops = search_centres(self.ukf.x[:2], theta, bias, offsets)
+        centre, crops = search_centres(self.ukf.fix_prediction()[0], theta, bias, offsets)  # in the map
         self._query_id += 1
         self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, self._terms.epsilon, reason)
 

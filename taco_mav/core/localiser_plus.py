@@ -24,7 +24,6 @@ from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.map_offset import MapOffset
 from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, defer_answer,
                                 grid_rings, hex_offsets, n_states, process_noise_plus)
 from taco_mav.core.preintegration import wrap_angle
@@ -55,11 +54,17 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         q, s_xy, s_th = self.q, params.initial_sigma_xy_m, params.initial_sigma_theta_rad
         var = [s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2,
                q.compass_bias_sigma_rad**2][:n_states(q)]
-        self.ukf = PlanarUkf(np.array([x, y, heading, 0.0, 0.0, 0.0][:len(var)]), np.diag(var), params.ukf_alpha,
+        g = params.map_georef_sigma_m  # the map's georeferencing offset as two more states (ukf.py)
+        if g > 0.0:
+            if len(var) != 6:
+                raise ValueError("map.georef_sigma_m > 0 needs the compass-bias state (plus.compass_bias_sigma_rad > 0)")
+            var += [g * g, g * g]
+        self.ukf = PlanarUkf(np.array([x, y, heading] + [0.0] * (len(var) - 3)), np.diag(var), params.ukf_alpha,
                              params.ukf_beta, params.ukf_kappa)
         self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2,
                                         q.zupt_accel_mean_max_mps2)
         self.unaided = UnaidedTrack(q.guard_k, q.guard_floor_m, q.imu_accel_sigma_mps2)
+        self._queries = 0  # queries planned since the start
         self._guard_added = 0.0  # position variance the guard added since the last accepted fix, m^2
         self._guard_flagged = False
         self._zupt_holdoff_until = -math.inf
@@ -77,9 +82,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._last_answer_t = -math.inf
         self._zupt = False  # the last frame had a zero-velocity update
         self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
-        self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window)
+        self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window,
+                                       s2=min(max(q.fix_scale_initial, q.fix_scale_min), q.fix_scale_max) ** 2)
         self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
-        self.map_offset = MapOffset(params.map_offset)  # the map's georeferencing offset (core/map_offset.py)
         self._odo = 0.0  # distance travelled, metres (new frames only)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
@@ -136,6 +141,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         inc = tick.inc
         dt = max(inc.dt, 1e-6)
         Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q)
+        if len(self.ukf.x) > len(Q):  # the map's offset is constant
+            Q = np.pad(Q, (0, len(self.ukf.x) - len(Q)))
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
 
     def _odometry_sigma(self, tick: _Tick) -> float:
@@ -191,6 +198,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             return self._planned("confirm", arm)
         if self._gnss_handover():
             return self._planned("handover", arm)
+        if self._map_anchored(sig):
+            return self._planned("map", arm)
         retry = q.defer_retry_m if self._deferred else q.trigger_retry_m
         if (q.trigger_distance_m > 0.0 and self._odo - self._odo_at_fix >= q.trigger_distance_m
                 and self._odo - self._odo_at_query >= retry):
@@ -207,7 +216,19 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
 
     def _planned(self, reason: str, offsets: np.ndarray) -> tuple[str, float, np.ndarray]:
         self._odo_at_query = self._odo
+        self._queries += 1
         return reason, 0.0, offsets
+
+    def _map_anchored(self, sig: float) -> bool:
+        """The map trigger (config plus.map_trigger_ratio): with the map's offset as states, the position (1-sigma
+        `sig`, m) is known better than map_trigger_ratio times the offset's smallest 1-sigma, so a fix now
+        teaches the offset; asked at once, then every map_trigger_m metres while it lasts."""
+        if len(self.ukf.x) < 8 or self.q.map_trigger_ratio <= 0.0:
+            return False
+        lam_b = float(np.linalg.eigvalsh(self.ukf.P[6:8, 6:8])[0])
+        if sig * sig >= self.q.map_trigger_ratio**2 * lam_b:
+            return False
+        return self._queries == 0 or self._odo - self._odo_at_query >= self.q.map_trigger_m
 
     def _gnss_handover(self) -> bool:
         """True once when the real GNSS that was in use is lost or held off: the camera at once, rather than
@@ -246,7 +267,6 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             if r is not None:
                 xy[k] = fix_position(q.crop_centres[k], q.heading, r.t, p.camera_lever_fwd_left_m)
                 psi[k] = yaw_residual(r.R)
-        xy = self.map_offset.correct(xy)  # map frame -> world frame
         w = np.array(weights)
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
         with np.errstate(invalid="ignore"):
@@ -267,11 +287,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         s_f0, s_l0 = self._fix_sigmas(c.weight)  # the matcher's w mapped as in the paper
         sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
         s_f, s_l = sc * s_f0, sc * s_l0
-        innov = z - tick.x[:2]
+        pred, Pz = self.ukf.fix_prediction(tick.x, tick.P)  # position (+ the map's offset), its covariance
+        innov = z - pred
         jump = float(np.linalg.norm(innov))
-        mv = self.map_offset.fix_variance()  # the fix also carries the map offset's remaining error
-        s_fo, s_lo = math.sqrt(s_f * s_f + mv), math.sqrt(s_l * s_l + mv)
-        nis = float(innov @ np.linalg.solve(tick.P[:2, :2] + fix_covariance(float(tick.x[2]), s_fo, s_lo), innov))
+        nis = float(innov @ np.linalg.solve(Pz + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
         state = self.lock.state
         if state is LockState.LOST:
             gate = qp.recover_chi2_gate if qp.recover_chi2_gate > 0.0 else math.inf  # under the widened P
@@ -281,7 +300,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             self._failed("innovation_gate", jump)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
-        held = self._hold(state, innov, jump, tick.P, now, now - q.capture_t)
+        held = self._hold(state, innov, jump, Pz, now, now - q.capture_t)
         if held == "hold":
             self._failed("unconfirmed", jump)
             return self._log(FixOutcome(query_id, False, "unconfirmed", q.capture_t, now, k, z, psi[k], s_f, s_l, nis,
@@ -292,10 +311,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._held = []
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
-            self.fix_scale.update(innov, tick.P[:2, :2] + mv * np.eye(2), fix_covariance(float(tick.x[2]), s_f0, s_l0))
-        # the map offset's share of this fix (core/map_offset.py; not from a relocalisation's jump)
-        self.map_offset.update(innov, tick.P[:2, :2], fix_covariance(float(tick.x[2]), s_f, s_l), learn=learn)
-        self._fuse(tick, z, s_fo, s_lo)
+            self.fix_scale.update(innov, Pz, fix_covariance(float(tick.x[2]), s_f0, s_l0))
+        self._fuse(tick, z, s_f, s_l)
         self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
         if learn:
             self.report_factor.update(nis)
@@ -416,14 +433,12 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self._guard_flagged
                 and not self.gnss_in_use):
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
-        if self.map_offset.fixes_applied:  # the map's offset error is common to every fix (core/map_offset.py)
-            est = dataclasses.replace(est, cov_xy=est.cov_xy + self.map_offset.report_cov())
         lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
         if lo < self._report_floor_m**2:
             est = dataclasses.replace(est, cov_xy=est.cov_xy + (self._report_floor_m**2 - lo) * np.eye(2))
         est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
                          compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
-                         map_offset=[float(v) for v in self.map_offset.b],
+                         map_offset=[float(v) for v in x[6:8]],
                          stationary=self._zupt)
         return est
 

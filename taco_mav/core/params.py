@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from taco_mav.core.gnss_guard import GnssParams
-from taco_mav.core.map_offset import MapOffsetParams
 from taco_mav.core.plus import PlusParams
 from taco_mav.core.smoother import SmootherParams
 
@@ -62,8 +61,9 @@ class LocaliserParams:
     history_s: float = 10.0
     # smoother (Sec. III-G)
     smoother: SmootherParams = field(default_factory=SmootherParams)
-    # the map's georeferencing offset, calibrated by taco+ (profile map.georef_sigma_m; 0: off)
-    map_offset: MapOffsetParams = field(default_factory=MapOffsetParams)
+    # the map's georeferencing 1-sigma per axis, m: taco+ then carries the map's offset as two filter states
+    # (profile map.georef_sigma_m; 0: the map is exact, as in the paper)
+    map_georef_sigma_m: float = 0.0
     # taco+ (issue 7): None = paper mode
     plus: PlusParams | None = None
     # real GNSS while it is honest, and the spoofing/jamming guard (issue 14)

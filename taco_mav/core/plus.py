@@ -69,6 +69,8 @@ class PlusParams:
     trigger_time_s: float = 10.0
     trigger_distance_m: float = 0.0  # also ask once this many metres passed since the last accepted fix (0: off)
     trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
+    map_trigger_ratio: float = 0.5  # ask while sigma_h < this x the map offset's smallest 1-sigma (8 states) ...
+    map_trigger_m: float = 3.0  # ... the first at once, then every this many metres
     defer_w: float = 0.0  # a weaker consensus answer is deferred while the filter is healthy (0: off)
     defer_max: int = 2  # ... at most this many times in a row
     defer_retry_m: float = 2.0  # ... and asked again this many metres on
@@ -87,6 +89,7 @@ class PlusParams:
     fix_scale_min: float = 0.3
     fix_scale_max: float = 2.0
     fix_scale_window: int = 10
+    fix_scale_initial: float = 1.0  # the scale before any fix taught one
     # reported accuracy: the filter's covariance times the a-posteriori variance factor of the fixes
     report_calibration: bool = True
     report_window: int = 20

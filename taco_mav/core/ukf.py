@@ -31,7 +31,8 @@ def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d
     """Body-frame rigid motion (Sec. III-F): rotate (forward, left) by theta, add dtheta (no wrap here).
     With the taco+ states (x[3] = speed error dv m/s, x[4] = accelerometer bias b m/s^2) the forward step
     gains dv dt - b dt^2 / 2 and dv loses b dt; the optional x[5] (compass bias, rad, first-order
-    Gauss-Markov) decays by `bias_decay` = exp(-dt / tau)."""
+    Gauss-Markov) decays by `bias_decay` = exp(-dt / tau); the optional x[6:8] (the map's georeferencing
+    offset, m: config map.georef_sigma_m) stay as they are."""
     if len(x) >= 5:
         dv, b = x[3], x[4]
         d_fwd = d_fwd + dv * dt - 0.5 * b * dt * dt
@@ -39,8 +40,10 @@ def _motion(x: np.ndarray, dt: float, d_fwd: float = 0.0, d_left: float = 0.0, d
     moved = [x[0] + c * d_fwd - s * d_left, x[1] + s * d_fwd + c * d_left, x[2] + d_theta]
     if len(x) >= 5:
         moved += [x[3] - x[4] * dt, x[4]]
-    if len(x) == 6:
+    if len(x) >= 6:
         moved.append(x[5] * bias_decay)
+    if len(x) == 8:
+        moved += [x[6], x[7]]
     return np.array(moved)
 
 
@@ -107,20 +110,24 @@ def _rows(n: int, *cols: int) -> np.ndarray:
 class PlanarUkf:
     """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3). taco+ passes a (5,) x0 that adds the
     forward speed error dv (m/s, true minus preintegrated) and the forward accelerometer bias b (m/s^2), or a
-    (6,) x0 that also carries the compass bias beta (rad; the compass reads theta + beta)."""
+    (6,) x0 that also carries the compass bias beta (rad; the compass reads theta + beta), or an (8,) x0 that
+    also carries the map's georeferencing offset (bx, by) m: a camera fix then measures position + offset."""
 
     def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0) -> None:
         n = len(x0)
-        if n not in (3, 5, 6) or np.shape(P0) != (n, n):
-            raise ValueError(f"PlanarUkf: state must be 3, 5 or 6 long with a matching P, got {n} and {np.shape(P0)}")
+        if n not in (3, 5, 6, 8) or np.shape(P0) != (n, n):
+            raise ValueError(f"PlanarUkf: state must be 3, 5, 6 or 8 long with a matching P, got {n} and "
+                             f"{np.shape(P0)}")
         points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
         self._Wm, self._Wc = points.Wm, points.Wc
         self._lam_n = (alpha**2 * (n + kappa) - n) + n  # filterpy: (lambda_ + n) scales P before the Cholesky
         self._x = np.asarray(x0, dtype=float).copy()
         self._P = nearest_pd(np.asarray(P0, dtype=float))
         self._h_pos, self._h_theta = _rows(n, 0, 1), _rows(n, 2)
-        if n == 6:
+        if n >= 6:
             self._h_theta[0, 5] = 1.0  # the compass reads theta + beta
+        if n == 8:
+            self._h_pos[0, 6] = self._h_pos[1, 7] = 1.0  # a map fix reads position + the map's offset
         self._h_speed = _rows(n, 3) if n >= 5 else None
 
     @property
@@ -161,16 +168,27 @@ class PlanarUkf:
         self._x, self._P = x, P if ok else _lift(P, _EIG_FLOOR)
         return float(nis)
 
+    def fix_prediction(self, x: np.ndarray | None = None, P: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """What a camera fix is expected to read for state (x, P) (default: the current one): (ENU m (2,), its
+        covariance m^2 (2, 2)); the position, plus the map's offset with the 8-state filter."""
+        x = self._x if x is None else x
+        P = self._P if P is None else P
+        if len(x) < 8:
+            return x[:2].copy(), P[:2, :2].copy()
+        H = self._h_pos
+        return H @ x, H @ P @ H.T
+
     def update_position(self, z: np.ndarray, R: np.ndarray) -> float:
-        """Position-only fix z (ENU metres, (2,)) with covariance R (2x2). Returns the NIS."""
-        innovation = np.asarray(z, dtype=float) - self._x[:2]
+        """Camera fix z (ENU metres, (2,)) with covariance R (2x2): it reads the position (plus the map's
+        offset with the 8-state filter). Returns the NIS."""
+        innovation = np.asarray(z, dtype=float) - self.fix_prediction()[0]
         return self._update(self._h_pos, innovation, np.ascontiguousarray(R, dtype=float))
 
     def position_nis(self, z: np.ndarray, R: np.ndarray) -> float:
-        """Normalised innovation squared of a position fix, without applying it."""
-        innovation = np.asarray(z, dtype=float) - self._x[:2]
-        S = self._P[:2, :2] + R
-        return float(innovation @ np.linalg.solve(S, innovation))
+        """Normalised innovation squared of a camera fix, without applying it."""
+        pred, S = self.fix_prediction()
+        innovation = np.asarray(z, dtype=float) - pred
+        return float(innovation @ np.linalg.solve(S + R, innovation))
 
     def update_speed_error(self, dv: float, sigma: float) -> None:
         """Measurement of the speed error state dv (m/s, 1-sigma m/s): a zero-velocity update measures

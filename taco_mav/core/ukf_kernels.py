@@ -78,8 +78,10 @@ def _motion(s: np.ndarray, out: np.ndarray, dt: float, d_fwd: float, d_left: flo
     if n >= 5:
         out[3] = s[3] - s[4] * dt
         out[4] = s[4]
-    if n == 6:
+    if n >= 6:
         out[5] = s[5] * bias_decay
+    for j in range(6, n):  # the map's offset (8 states) is constant
+        out[j] = s[j]
 
 
 @numba.njit(**_JIT)
@@ -220,7 +222,7 @@ def process_noise_plus(theta: float, dt: float, distance: float, n: int, q55: fl
                        q_lat: float, q_theta: float, q_speed: float, q_bias: float) -> np.ndarray:
     """plus.process_noise_plus compiled (q55: the compass-bias entry, computed by the caller)."""
     Q = np.zeros((n, n))
-    if n == 6:
+    if n >= 6:
         Q[5, 5] = q55
     rw = q_pos * q_pos * dt
     fc = fix_covariance(theta, q_fwd * distance, q_lat * distance)
