@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "CPU)")
     p.add_argument("--fg2-published", action="store_true", help="fg2 section: FG2's own forward (fg2.fast: false)")
     p.add_argument("--fg2-compile", action="store_true", help="fg2 section: torch.compile DINOv2 (fg2.compile)")
+    p.add_argument("--fg2-device-crops", action="store_true", help="fg2 section: crops warped on the matcher's "
+                   "device (fg2.device_crops)")
     p.set_defaults(func=offline.cmd_bench)
 
     p = sub.add_parser("world", parents=[common], help="generate a synthetic world + drive in KITTI raw layout")

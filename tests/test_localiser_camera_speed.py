@@ -81,28 +81,32 @@ def test_sideways_motion_is_refused_not_taken_for_speed():
     assert np.linalg.norm(loc.estimate().xy - before) < 0.01 and abs(loc.estimate().speed) < 0.05
 
 
-def test_a_camera_locked_onto_a_wrong_speed_stays_gated():
+def test_a_camera_locked_onto_a_wrong_speed_is_held_off_until_it_agrees_again():
     """The camera's correlation locks onto a lead car or a repeating marking and reads a third of the true
-    speed for 4 s while the IMU is right (seen live on a 3-D world, seed 5: the speed variance was opened and
-    the estimate went 20 m off). The IMU alone sides with the filter, so every wrong reading stays gated and the
-    track holds; a stop the IMU took for a cruise is still corrected (the first test)."""
+    speed for 8 s while the IMU is right (seen live on 3-D worlds, seeds 5 and 7: first the speed variance was
+    opened for it, then, once the variance had grown without camera updates, a wrong reading slipped through
+    the gate; both times the estimate went ~20 m off). The IMU alone sides with the filter, so the camera is
+    suspect: every wrong reading is refused, however wide the speed variance grows, and the camera is used
+    again once two readings agree; a stop the IMU took for a cruise is still corrected (the first test)."""
     d = simulate(lambda t: 10.0, lambda t: 0.0, 40.0, rate_hz=50.0, accel_noise=0.02, gyro_noise=0.001,
                  compass_noise=0.002, seed=4)
     params = LocaliserParams(plus=PlusParams(q_speed_mps=0.5, trigger_sigma_m=math.inf, trigger_time_s=math.inf))
     rng = np.random.default_rng(0)
     loc = make_localiser(params, 0.0, heading=float(d.theta[0]), speed=float(d.speed[0]))
-    outcomes, next_t, err = [], 0.5, []
+    wrong, after, next_t, err = [], [], 0.5, []
     for s in d.samples:
         loc.add_imu(s)
         if s.t >= next_t:
             next_t += 0.5
             t1 = s.t - 0.1
             fwd, left, sigma = _camera(d, t1 - 0.3, t1, rng)
-            if 20.0 <= t1 < 24.0:
-                fwd /= 3.0  # the wrong lock
-                outcomes.append(loc.add_ground_motion(t1 - 0.3, t1, fwd, left, sigma))
+            if 20.0 <= t1 < 28.0:
+                wrong.append(loc.add_ground_motion(t1 - 0.3, t1, fwd / 3.0, left, sigma))  # the wrong lock
             else:
-                loc.add_ground_motion(t1 - 0.3, t1, fwd, left, sigma)
+                out = loc.add_ground_motion(t1 - 0.3, t1, fwd, left, sigma)
+                if t1 >= 28.0:
+                    after.append(out)
         err.append(float(np.linalg.norm(loc.estimate().xy - np.array(d.pose_at(s.t)[:2]))))
-    assert outcomes.count("gated") == len(outcomes) >= 7, outcomes
-    assert abs(loc.estimate().speed - 10.0) < 0.3 and max(err) < 1.0, (loc.estimate().speed, max(err))
+    assert len(wrong) == 16 and set(wrong) == {"gated", "suspect"} and wrong[:3] == ["gated"] * 3, wrong
+    assert after[0] == "suspect" and after[1:].count("used") >= len(after) - 3, after  # the 2nd agreeing is used
+    assert abs(loc.estimate().speed - 10.0) < 0.3 and max(err) < 1.5, (loc.estimate().speed, max(err))

@@ -72,8 +72,8 @@ class PlusConfig:
     trigger_distance_m: float = field(default=0.0, metadata=bounded(0.0))
     trigger_retry_m: float = field(default=10.0, metadata=bounded(0.0))
     # Map trigger: with the map's offset modelled (map.georef_sigma_m > 0), a fix is asked while the position is
-    # known better than map_trigger_ratio times the offset's smallest 1-sigma (the start, a precise GNSS): such a
-    # fix teaches the offset. The first at once, then one every map_trigger_m metres while it lasts.
+    # known better than map_trigger_ratio times the offset's 1-sigma in its least known direction (the start, a
+    # precise GNSS): such a fix teaches the offset. The first at once, then one every map_trigger_m metres.
     map_trigger_ratio: float = field(default=0.5, metadata=bounded(0.0))
     map_trigger_m: float = field(default=3.0, metadata=bounded(0.0))
     # Deferred weak answers (issue 18): while the filter is healthy (locked, the safety guard quiet, its prior

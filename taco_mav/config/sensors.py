@@ -134,3 +134,8 @@ class Fg2Config:
     fast: bool = True
     # torch.compile DINOv2's forward (CUDA; the first triggers of each input shape compile, which takes a while).
     compile: bool = False
+    # Crops warped on the matcher's device: the K heading-up crops of a trigger are resampled from a device copy of
+    # the mosaic in one batched bilinear call (taco_mav/cvgl/device_crops.py) instead of K cv2 warps on the CPU
+    # and an upload; same geometry and off-map rules, within ~1 grey level (tests/test_device_crops.py). Not in
+    # the paper.
+    device_crops: bool = False

@@ -27,6 +27,8 @@ class CameraSpeedMixin:
     _history: Any
     _camera_moving_until: float
     _camera_gated: int
+    _camera_suspect: bool
+    _camera_agree: int
     _distrust_zupt: Any  # SafetyGuardMixin
     _speed_variance_at_least: Any
 
@@ -36,7 +38,10 @@ class CameraSpeedMixin:
         interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
         second. A measurement far outside the filter's speed uncertainty is held off (chi-square, 1 dof,
         99.9 %), and three in a row, when the IMU alone sides with the camera, make a zero-velocity update
-        since the last fix suspect and open the speed variance (`_camera_sides_with_imu`). Returns "used",
+        since the last fix suspect and open the speed variance (`_camera_sides_with_imu`); when the IMU sides
+        with the filter instead, the camera is suspect (locked onto a lead car or a repeating marking): its
+        measurements are refused until two in a row agree with the filter within their own noise, however far
+        the speed variance has grown meanwhile. Returns "used", "suspect",
         "gated", "lateral" (sideways motion: a heading change the compass got wrong), "stale" (its frames are
         older than the history) or "invalid"."""
         dt = t1 - t0
@@ -57,11 +62,22 @@ class CameraSpeedMixin:
         var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
         z = v_cam - v_est
         P33 = float(self.ukf.P[3, 3])
+        if self._camera_suspect:  # locked onto something else: used again once it agrees twice on its own noise
+            if z * z > 10.83 * var and not self._camera_sides_with_imu(v_cam, v_est):
+                self._camera_agree = 0
+                return "suspect"
+            self._camera_agree += 1
+            if self._camera_agree < 2:
+                return "suspect"
+            self._camera_suspect = False
         if z * z > 10.83 * (P33 + var):
             self._camera_gated += 1
-            if self._camera_gated >= 3 and self._camera_sides_with_imu(v_cam, v_est):
-                self._distrust_zupt()
-                self._speed_variance_at_least(z * z)
+            if self._camera_gated >= 3:
+                if self._camera_sides_with_imu(v_cam, v_est):
+                    self._distrust_zupt()
+                    self._speed_variance_at_least(z * z)
+                else:  # the camera is the one that is wrong: hold it off until it agrees again
+                    self._camera_suspect, self._camera_agree = True, 0
             return "gated"
         self._camera_gated = 0
         before = self.ukf.x[:2].copy()

@@ -76,6 +76,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._drive: tuple[float, bool] | None = None  # (t, the autopilot drives) from set_drive_command
         self._camera_moving_until = -math.inf  # the camera saw the ground move: no zero-velocity update
         self._camera_gated = 0  # camera speed measurements held off in a row
+        self._camera_suspect, self._camera_agree = False, 0  # camera locked onto something else (camera_speed.py)
         self._gnss_was_healthy = False  # the real GNSS was in use at the last trigger check
         self.speed_check = SpeedCheck()  # GNSS ground speed against the camera's (spoofing, speed_check.py)
         self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
@@ -221,11 +222,11 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
 
     def _map_anchored(self, sig: float) -> bool:
         """The map trigger (config plus.map_trigger_ratio): with the map's offset as states, the position (1-sigma
-        `sig`, m) is known better than map_trigger_ratio times the offset's smallest 1-sigma, so a fix now
-        teaches the offset; asked at once, then every map_trigger_m metres while it lasts."""
+        `sig`, m) is known better than map_trigger_ratio times the offset's 1-sigma in its least known direction,
+        so a fix now teaches the offset; asked at once, then every map_trigger_m metres while it lasts."""
         if len(self.ukf.x) < 8 or self.q.map_trigger_ratio <= 0.0:
             return False
-        lam_b = float(np.linalg.eigvalsh(self.ukf.P[6:8, 6:8])[0])
+        lam_b = float(np.linalg.eigvalsh(self.ukf.P[6:8, 6:8])[-1])
         if sig * sig >= self.q.map_trigger_ratio**2 * lam_b:
             return False
         return self._queries == 0 or self._odo - self._odo_at_query >= self.q.map_trigger_m

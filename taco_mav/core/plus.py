@@ -69,7 +69,7 @@ class PlusParams:
     trigger_time_s: float = 10.0
     trigger_distance_m: float = 0.0  # also ask once this many metres passed since the last accepted fix (0: off)
     trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
-    map_trigger_ratio: float = 0.5  # ask while sigma_h < this x the map offset's smallest 1-sigma (8 states) ...
+    map_trigger_ratio: float = 0.5  # ask while sigma_h < this x the map offset's largest 1-sigma (8 states) ...
     map_trigger_m: float = 3.0  # ... the first at once, then every this many metres
     defer_w: float = 0.0  # a weaker consensus answer is deferred while the filter is healthy (0: off)
     defer_max: int = 2  # ... at most this many times in a row

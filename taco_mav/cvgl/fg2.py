@@ -118,6 +118,7 @@ class Fg2Matcher:
         self.model = load_model(cfg) if model is None else model
         params = list(self.model.parameters()) if hasattr(self.model, "parameters") else []
         self.device = params[0].device if params else resolve_device(cfg.device)
+        self._cropper: Any = None  # DeviceCropper, made on first use (fg2.device_crops)
         self._ground_from_pixel = torch.as_tensor(camera.image_to_ground, dtype=torch.float32,
                                                   device=self.device)[None]
         self._pixel_from_level = torch.as_tensor(pixel_from_level(camera), dtype=torch.float32,
@@ -132,9 +133,9 @@ class Fg2Matcher:
                             self.device)
         elif cfg.compile:
             log.warning("fg2.compile: %s has no compilable parts; running it as it is", type(self.model).__name__)
-        log.info("fg2: %s on %s, fast path %s, compile %s, fp16 autocast %s", type(self.model).__name__,
-                 self.device, "on" if cfg.fast else "off", "on" if cfg.compile else "off",
-                 "on" if self._autocast_enabled else "off")
+        log.info("fg2: %s on %s, fast path %s, compile %s, fp16 autocast %s, crops warped on %s",
+                 type(self.model).__name__, self.device, "on" if cfg.fast else "off", "on" if cfg.compile else "off",
+                 "on" if self._autocast_enabled else "off", self.device if self.device_crops else "the CPU")
 
     @property
     def _autocast_enabled(self) -> bool:
@@ -147,30 +148,77 @@ class Fg2Matcher:
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         """One MatchResult per crop: the ground image is encoded once, the crops run as one batch."""
         torch = _torch()
-        if frame.image.ndim != 3 or frame.image.shape[2] != 3 or frame.image.size == 0:
-            raise MatcherError(f"fg2: ground image must be (H, W, 3) RGB, got shape {frame.image.shape}")
+        self._check_frame(frame)
         if not crops:
             return []
         sizes = {c.image.shape for c in crops}
         scales = {round(c.m_per_px, 9) for c in crops}
         if len(sizes) != 1 or len(scales) != 1:
             raise MatcherError(f"fg2: crops of one trigger must share size and m/px, got {sizes} and {scales}")
-        m_per_px = crops[0].m_per_px
+
+        def aerial() -> Any:
+            images = torch.from_numpy(np.stack([c.image for c in crops])).to(self.device)
+            return images.permute(0, 3, 1, 2).float() / 255.0
+
+        return self._run(frame, aerial, len(crops), crops[0].m_per_px)
+
+    # ------------------------------------------------------------ crops warped on the device (fg2.device_crops)
+    @property
+    def device_crops(self) -> bool:
+        """The profile switch fg2.device_crops: callers then hand the map and the crop geometry to `cut_crops`
+        and `match_crops` (the GeometryMatcher capability, taco_mav/cvgl/device_crops.py) instead of crops."""
+        return bool(getattr(self.cfg, "device_crops", False))
+
+    def cut_crops(self, sat_map: Any, centres_utm: np.ndarray, heading: float, size_px: int,
+                  m_per_px: float) -> Any:
+        """The K heading-up crops of a trigger resampled on this matcher's device (`DeviceCropper.cut`: same
+        geometry and off-map rules as `SatelliteMap.crop`; off-map ones are flagged, not raised)."""
+        if self._cropper is None:
+            from taco_mav.cvgl.device_crops import DeviceCropper
+
+            self._cropper = DeviceCropper(self.device)
+        with _torch().no_grad():  # not inference_mode: the cropper keeps a mosaic tensor across calls
+            return self._cropper.cut(sat_map, centres_utm, heading, size_px, m_per_px)
+
+    def match_crops(self, frame: GroundFrame, crops: Any) -> list[MatchResult]:
+        """One MatchResult per present crop of a `DeviceCrops` batch (from `cut_crops`), in order."""
+        n = int(crops.images.shape[0])
+        if n == 0:
+            self._check_frame(frame)
+            return []
+        return self._run(frame, lambda: crops.images, n, crops.m_per_px)
+
+    def match_geometry(self, frame: GroundFrame, sat_map: Any, centres_utm: np.ndarray, heading: float,
+                       size_px: int, m_per_px: float) -> list[MatchResult | None]:
+        """cut_crops then match_crops: MatchResults aligned with centres_utm, None where a crop is off the map."""
+        crops = self.cut_crops(sat_map, centres_utm, heading, size_px, m_per_px)
+        it = iter(self.match_crops(frame, crops))
+        return [next(it) if present else None for present in crops.present]
+
+    # ------------------------------------------------------------ the model
+    @staticmethod
+    def _check_frame(frame: GroundFrame) -> None:
+        if frame.image.ndim != 3 or frame.image.shape[2] != 3 or frame.image.size == 0:
+            raise MatcherError(f"fg2: ground image must be (H, W, 3) RGB, got shape {frame.image.shape}")
+
+    def _run(self, frame: GroundFrame, aerial_fn: Any, n: int, m_per_px: float) -> list[MatchResult]:
+        """Encode the ground once, match the n crops aerial_fn() returns ((n, 3, S, S) float [0, 1] on the
+        device) as one batch."""
+        torch = _torch()
+        self._check_frame(frame)
         start = time.perf_counter()
         with torch.inference_mode(), tf32(self.device.type == "cuda" and self.cfg.fast), self._autocast():
             image = torch.from_numpy(np.ascontiguousarray(frame.image)).to(self.device)
             image = image.permute(2, 0, 1)[None].float() / 255.0
             feats = self.model.encode_ground(image, self._ground_from_pixel, self._pixel_from_level)
-            aerial = torch.from_numpy(np.stack([c.image for c in crops])).to(self.device)
-            aerial = aerial.permute(0, 3, 1, 2).float() / 255.0
-            R_img, t_px, mass = self.model.match_aerial(feats, aerial, m_per_px)
+            R_img, t_px, mass = self.model.match_aerial(feats, aerial_fn(), m_per_px)
         if self.device.type == "cuda":
             torch.cuda.synchronize()
-        elapsed = (time.perf_counter() - start) / len(crops)
-        R_np = R_img.float().cpu().numpy().reshape(len(crops), 2, 2)
-        t_np = t_px.float().cpu().numpy().reshape(len(crops), 2)
-        m_np = mass.float().cpu().numpy().reshape(len(crops))
-        return [_to_result(R_np[i], t_np[i], float(m_np[i]), m_per_px, elapsed) for i in range(len(crops))]
+        elapsed = (time.perf_counter() - start) / n
+        R_np = R_img.float().cpu().numpy().reshape(n, 2, 2)
+        t_np = t_px.float().cpu().numpy().reshape(n, 2)
+        m_np = mass.float().cpu().numpy().reshape(n)
+        return [_to_result(R_np[i], t_np[i], float(m_np[i]), m_per_px, elapsed) for i in range(n)]
 
 
 @contextlib.contextmanager

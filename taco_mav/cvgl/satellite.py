@@ -24,6 +24,7 @@ import logging
 import math
 import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -38,6 +39,22 @@ from taco_mav.errors import MapError, OffMapError
 log = logging.getLogger(__name__)
 
 BLOCK = 256
+
+
+@dataclass(frozen=True)
+class CropPlan:
+    """Geometry of one heading-up crop (`SatelliteMap.crop_plan`). level: pyramid level (0 = the mosaic, k: shrunk
+    2^k times); M: 2x3 affine, crop pixel (u, v, 1) -> level pixel (x, y) (pixel centres at integers); bbox:
+    (x0, y0, x1, y1) level pixels the bilinear warp reads, half-open, unclipped; level_shape: (H, W);
+    inside: bbox inside the level and every mosaic pixel valid (valid fraction 1 without looking); wholly_off:
+    bbox wholly outside the level."""
+
+    level: int
+    M: np.ndarray
+    bbox: tuple[int, int, int, int]
+    level_shape: tuple[int, int]
+    inside: bool
+    wholly_off: bool
 
 
 def _is_utm(epsg: int | None) -> bool:
@@ -131,6 +148,33 @@ class SatelliteMap:
         min_valid = self.min_valid if min_valid is None else min_valid
         S = int(size_px)
         E0, N0 = float(centre_utm[0]), float(centre_utm[1])
+        plan = self.crop_plan(centre_utm, heading, S, m_per_px)
+        level, M, (x0, y0, x1, y1) = plan.level, plan.M.copy(), plan.bbox
+        H, W = plan.level_shape
+        if plan.wholly_off:
+            raise self.off_map_error(E0, N0, 0.0, min_valid, wholly=True)
+        x0c, y0c, x1c, y1c = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+        window = self._window(level, x0c, y0c, x1c, y1c)
+        M[0, 2] -= x0c
+        M[1, 2] -= y0c
+        out = cv2.warpAffine(window, M, (S, S), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+        valid = 1.0 if plan.inside else float(cv2.mean(out)[3] / 255.0)
+        if valid < min_valid or valid <= 0.0:
+            raise self.off_map_error(E0, N0, valid, min_valid)
+        rgb = cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)  # a fast contiguous copy of the colour channels
+        if valid < 1.0:
+            rgb[out[:, :, 3] < 128] = 0
+        return Crop(image=rgb, centre_utm=np.array([E0, N0]), heading=float(heading), m_per_px=float(m_per_px),
+                    valid_fraction=valid)
+
+    def crop_plan(self, centre_utm: np.ndarray, heading: float, size_px: int, m_per_px: float) -> CropPlan:
+        """The geometry of `crop` without the pixels: the pyramid level, the affine M taking crop pixel (u, v, 1)
+        to that level's pixel (x, y), the level pixel box the bilinear warp reads (unclipped, with a 2 px margin)
+        and whether it lies wholly inside / wholly outside the level. `crop` and the device crops
+        (taco_mav/cvgl/device_crops.py) both warp with it. MapError for a non-finite centre or heading."""
+        S = int(size_px)
+        E0, N0 = float(centre_utm[0]), float(centre_utm[1])
         if not (math.isfinite(E0) and math.isfinite(N0) and math.isfinite(heading)):
             raise MapError(f"{self.path}: crop request with a non-finite centre/heading ({E0}, {N0}, {heading})")
         level = max(0, int(math.floor(math.log2(max(m_per_px / self.m_per_px, 1.0)))))
@@ -151,25 +195,33 @@ class SatelliteMap:
         x0, y0 = int(math.floor(xy[:, 0].min())) - 2, int(math.floor(xy[:, 1].min())) - 2
         x1, y1 = int(math.ceil(xy[:, 0].max())) + 3, int(math.ceil(xy[:, 1].max())) + 3
         H, W = src
-        if x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H:
-            raise OffMapError(f"{self.path}: crop at E={E0:.1f} N={N0:.1f} is wholly outside the mosaic "
-                              f"{tuple(round(b, 1) for b in self.bounds_utm)}", 0.0)
-        x0c, y0c, x1c, y1c = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
-        window = self._window(level, x0c, y0c, x1c, y1c)
-        M[0, 2] -= x0c
-        M[1, 2] -= y0c
-        out = cv2.warpAffine(window, M, (S, S), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                             borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+        wholly_off = x1 <= 0 or y1 <= 0 or x0 >= W or y0 >= H
         inside = self._all_valid and x0 >= 0 and y0 >= 0 and x1 <= W and y1 <= H
-        valid = 1.0 if inside else float(cv2.mean(out)[3] / 255.0)
-        if valid < min_valid or valid <= 0.0:
-            raise OffMapError(f"{self.path}: crop at E={E0:.1f} N={N0:.1f} is {100 * (1 - valid):.1f} % off the "
-                              f"mosaic (at least {100 * min_valid:.1f} % on-map required)", valid)
-        rgb = cv2.cvtColor(out, cv2.COLOR_RGBA2RGB)  # a fast contiguous copy of the colour channels
-        if valid < 1.0:
-            rgb[out[:, :, 3] < 128] = 0
-        return Crop(image=rgb, centre_utm=np.array([E0, N0]), heading=float(heading), m_per_px=float(m_per_px),
-                    valid_fraction=valid)
+        return CropPlan(level, M, (x0, y0, x1, y1), (H, W), inside, wholly_off)
+
+    def off_map_error(self, E0: float, N0: float, valid: float, min_valid: float,
+                      wholly: bool = False) -> OffMapError:
+        """The OffMapError `crop` raises for a crop at (E0, N0): wholly outside the mosaic, or with on-map share
+        `valid` below min_valid."""
+        if wholly:
+            return OffMapError(f"{self.path}: crop at E={E0:.1f} N={N0:.1f} is wholly outside the mosaic "
+                               f"{tuple(round(b, 1) for b in self.bounds_utm)}", 0.0)
+        return OffMapError(f"{self.path}: crop at E={E0:.1f} N={N0:.1f} is {100 * (1 - valid):.1f} % off the "
+                           f"mosaic (at least {100 * min_valid:.1f} % on-map required)", valid)
+
+    def level_rgba(self, level: int) -> np.ndarray | None:
+        """The whole pyramid level as (H, W, 4) RGBA uint8 when the mosaic is in memory (built on first use, as
+        `crop` builds it), else None (block-cache mosaics: use `window_rgba`). Do not write to it."""
+        if not self.in_memory:
+            return None
+        self._window(level, 0, 0, 1, 1)  # builds the level on first use
+        with self._lock:
+            return self._levels[level]
+
+    def window_rgba(self, level: int, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
+        """RGBA uint8 pixels of a level for [x0, x1) x [y0, y1), which must lie inside the level (a view into
+        the in-memory level, or a buffer assembled from the block cache). Do not write to it."""
+        return self._window(level, x0, y0, x1, y1)
 
     # ---------------------------------------------------------------- pixel access
     def _level_geometry(self, level: int) -> tuple[tuple[int, int], float, float]:

@@ -10,6 +10,7 @@ import logging
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -45,6 +46,13 @@ def _check_results(results: object, n: int) -> list[MatchResult]:
     return list(results)
 
 
+def _device_crops(matcher: object) -> bool:
+    """The matcher cuts its own crops on its device (taco_mav.cvgl.device_crops.GeometryMatcher, switched on by
+    fg2.device_crops); checked by attribute so that torch is not imported here."""
+    return (bool(getattr(matcher, "device_crops", False)) and callable(getattr(matcher, "cut_crops", None))
+            and callable(getattr(matcher, "match_crops", None)))
+
+
 class FixService:
     """matcher: any `Matcher`; sat_map: the mosaic, or None for matchers that need no imagery (the emulator on
     image-less drives: crops then carry an empty image but the right centre and heading); origin_utm: (2,)
@@ -75,19 +83,39 @@ class FixService:
                 out.append(None)
         return out
 
+    def _cut_on_device(self, query: FixQuery) -> Any:
+        """The query's crops cut by the matcher on its device (DeviceCrops: off-map ones flagged and counted)."""
+        centres = self.origin + np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
+        matcher: Any = self.matcher  # a GeometryMatcher (checked by _device_crops)
+        batch = matcher.cut_crops(self.map, centres, query.heading, self.size, self.m_per_px)
+        for exc in batch.errors:
+            if exc is not None:
+                self.stats.crops_off_map += 1
+                log.debug("query %d: %s", query.query_id, exc)
+        return batch
+
     def answer(self, query: FixQuery, frame: GroundFrame) -> list[MatchResult | None]:
         """MatchResults aligned with query.crop_centres (None for crops off the map). ValueError when the
         matcher's answer is malformed (wrong count, type or shape)."""
         t0 = time.perf_counter()
-        crops = self.crops(query)
-        t1 = time.perf_counter()
-        valid = [c for c in crops if c is not None]
-        results = _check_results(self.matcher.match(frame, valid), len(valid)) if valid else []
+        if self.map is not None and _device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
+            batch = self._cut_on_device(query)
+            present = list(batch.present)
+            t1 = time.perf_counter()
+            n = sum(present)
+            matcher: Any = self.matcher
+            results = _check_results(matcher.match_crops(frame, batch), n) if n else []
+        else:
+            crops = self.crops(query)
+            present = [c is not None for c in crops]
+            t1 = time.perf_counter()
+            valid = [c for c in crops if c is not None]
+            results = _check_results(self.matcher.match(frame, valid), len(valid)) if valid else []
         t2 = time.perf_counter()
-        if not valid:
+        if not any(present):
             self.stats.triggers_off_map += 1
         it = iter(results)
-        aligned = [next(it) if c is not None else None for c in crops]
+        aligned = [next(it) if p else None for p in present]
         self.stats.answered += 1
         self.stats.crop_s += t1 - t0
         self.stats.matcher_s += t2 - t1
