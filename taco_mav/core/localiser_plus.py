@@ -69,6 +69,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._guard_flagged = False
         self._zupt_holdoff_until = -math.inf
         self._gate_misses = 0  # consecutive innovation-gate rejections
+        self._gate_innovs: list[tuple[np.ndarray, float]] = []  # ... their z - x (ENU m) and odometer (m)
         self._misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
         self._report_floor_m = 0.0  # 1-sigma floor on the reported (not the filter's) position accuracy, m
         self._zupt_since_reset = False  # a zero-velocity update since the IMU-only track was reset
@@ -298,7 +299,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         else:
             gate = qp.chi2_gate if c.support > 1 else qp.chi2_gate_single
         if nis > gate:
-            self._failed("innovation_gate", jump)
+            self._failed("innovation_gate", jump, innov)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
         held = self._hold(state, innov, jump, Pz, now, now - q.capture_t)
@@ -322,6 +323,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if self._history:
             self._feedback(self._history[-1])
         self._gate_misses = self._misses_in_row = self._deferred = 0
+        self._gate_innovs = []
         self._report_floor_m = 0.0
         self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
         if self.q.guard:
@@ -376,27 +378,43 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n)])[-q.confirm_keep:]
         return "hold"
 
-    def _failed(self, reason: str, innovation_m: float) -> None:
+    def _failed(self, reason: str, innovation_m: float, innov: np.ndarray | None = None) -> None:
         """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared
         lost (half the disagreement, at least lost_sigma_min_m) and by half a grid spacing per failed
         recovery attempt. With the safety guard, `guard_gate_misses` failures in a row (off-map answers
         aside) also make a zero-velocity update since the last fix suspect (`_distrust_zupt`), and innovation-gate
         rejections in a row keep the *reported* accuracy at half their disagreement until a fix is accepted,
-        while the gate keeps the filter's own P (a silent outlier stays out)."""
+        while the gate keeps the filter's own P (a silent outlier stays out), when they agree with each other
+        (the corrections z - x they imply within confirm_agree_m plus confirm_agree_per_m of the distance driven
+        between them, as held answers): the camera then keeps saying the estimate is elsewhere. Rejected answers
+        that scatter are the matcher's chance peaks (a 3-D street), not evidence against the estimate.
+        innov: the rejected answer's z - x (ENU m), for that comparison."""
         was_lost = self.lock.state is LockState.LOST
         if reason != "no_results":
             self._misses_in_row += 1
         self._gate_misses = self._gate_misses + 1 if reason == "innovation_gate" else 0
+        if reason == "innovation_gate" and innov is not None:
+            self._gate_innovs = (self._gate_innovs + [(np.array(innov, dtype=float), self._odo)])[-self.q.guard_gate_misses:]
+        else:
+            self._gate_innovs = []
         if self.lock.on_failure(self.t, reason):
             self._inflate(0.5 * innovation_m)
         elif was_lost:
             self._widen(0.5 * self.q.grid_spacing_m)
-        elif self.q.guard and self._gate_misses >= self.q.guard_gate_misses:
+        elif self.q.guard and self._gate_misses >= self.q.guard_gate_misses and self._gate_misses_agree():
             self._report_floor_m = max(self._report_floor_m, 0.5 * innovation_m)
             self.lock.note(self.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
                            "away: accuracy widened")
         if self.q.guard and self._misses_in_row >= self.q.guard_gate_misses:
             self._distrust_zupt()
+
+    def _gate_misses_agree(self) -> bool:
+        """Whether the last guard_gate_misses innovation-gate rejections imply the same correction (`_failed`)."""
+        q, kept = self.q, self._gate_innovs
+        if len(kept) < q.guard_gate_misses:
+            return True  # rejections without their vectors (none here): keep the cautious rule
+        return all(float(np.linalg.norm(a[0] - b[0])) <= q.confirm_agree_m + q.confirm_agree_per_m * abs(a[1] - b[1])
+                   for i, a in enumerate(kept) for b in kept[i + 1:])
 
     def _settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:
         """Lock bookkeeping after an applied fix. A relocalisation (from LOST) keeps half its jump as a
