@@ -5,7 +5,7 @@ the daemon's summary; the same path as tests/test_live.py's run_live.
     python tools/live_world.py W [--profile synthetic_3d] [--estimator taco+] [--speed 5] [--deny-after 1]
                                  [--gnss-noise 1] [--set plus.trigger_distance_m=40 ...] [--out results.json]
 
-World: `taco-mav world --out W --seed S` (3-D by default). ATE is metres over the whole drive (DESIGN.md), with
+World: `taco-mav world --out W --seed S --realism 3d` (profile synthetic_3d; a flat world: --profile synthetic). ATE is metres over the whole drive (DESIGN.md), with
 GNSS (the simulator's receiver) for the first --deny-after seconds only.
 """
 

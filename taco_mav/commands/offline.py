@@ -64,8 +64,7 @@ def cmd_world(args: argparse.Namespace) -> int:
 
     path = build_world(out, seed=args.seed, length_km=args.length_km,
                        centre=(centre[0], centre[1]) if centre else None, along_drive=along,
-                       imu_preset=args.imu, progress=show_progress(args),
-                       realism=args.realism or ("flat" if along else "3d"))
+                       imu_preset=args.imu, progress=show_progress(args), realism=args.realism)
     print(f"wrote world {path}")
     return 0
 
