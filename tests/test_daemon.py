@@ -84,7 +84,7 @@ def test_gps_input_fields_and_position(drive) -> None:
     assert min(r.msg.horiz_accuracy for r in got) < 2.0
     assert msg.hdop == pytest.approx(max(msg.horiz_accuracy / 2.0, 0.5), rel=1e-5)
     assert msg.ignore_flags == (16 | 128 | 4)  # VEL_VERT | VERTICAL_ACCURACY | VDOP
-    assert msg.yaw == 0  # not sent by default: our heading is the autopilot's own compass (output.send_yaw)
+    assert abs(msg.yaw - 3000) <= 30  # 30 deg true
     assert abs(math.hypot(msg.vn, msg.ve) - 5.0) < 0.2
     assert abs(math.degrees(math.atan2(msg.ve, msg.vn)) - 30.0) < 1.0
     assert abs(msg.alt - 115.0) < 1e-3

@@ -16,7 +16,7 @@ from taco_mav.config import OutputConfig  # noqa: E402
 from taco_mav.core.types import Estimate  # noqa: E402
 from taco_mav.link import encoders  # noqa: E402
 
-CFG = OutputConfig(send_yaw=True)  # the yaw tests need it sent (off by default)
+CFG = OutputConfig()
 ORIGIN = encoders.Origin.from_latlon(49.0, 8.4, 115.0)
 
 
@@ -72,11 +72,16 @@ def test_gps_input_fields_and_units() -> None:
                                 | mavlink.GPS_INPUT_IGNORE_FLAG_VDOP)
 
 
-def test_gps_input_sends_no_yaw_by_default() -> None:
-    """Off by default: the heading is the autopilot's own compass, so GPS_INPUT.yaw is 0 ("no yaw")."""
-    sol = encoders.solution(est(theta=0.3, speed=2.0), ORIGIN, OutputConfig(), healthy=True)
-    assert roundtrip(lambda mav: encoders.gps_input(mav, sol, OutputConfig(), 1.7e9)).yaw == 0
+def test_gps_input_without_yaw_and_the_synthetic_profiles_send_none() -> None:
+    """output.send_yaw false gives GPS_INPUT.yaw 0 ("no yaw"); the synthetic profiles, scored by the simulator
+    rather than steering an autopilot, send none; the rover profiles do."""
+    from taco_mav.config import load_profile
+
+    sol = encoders.solution(est(theta=0.3, speed=2.0), ORIGIN, CFG, healthy=True)
+    assert roundtrip(lambda mav: encoders.gps_input(mav, sol, OutputConfig(send_yaw=False), 1.7e9)).yaw == 0
     assert roundtrip(lambda mav: encoders.gps_input(mav, sol, CFG, 1.7e9)).yaw != 0
+    assert not load_profile("synthetic").output.send_yaw and not load_profile("synthetic_3d").output.send_yaw
+    assert load_profile("ardupilot_rover").output.send_yaw
 
 
 def test_gps_input_heading_east_uses_convergence() -> None:

@@ -55,10 +55,12 @@ class OutputConfig:
     recover_accuracy_m: float = field(default=8.0, metadata=bounded(0.0, open_lo=True))
     stall_s: float = field(default=0.5, metadata=bounded(0.0, open_lo=True))  # no IMU this long: fix_type 1
     vertical_accuracy_m: float = field(default=5.0, metadata=bounded(0.0, open_lo=True))  # reported epv (flat ground)
-    # GPS_INPUT.yaw (36000 = north). Off: our heading is the autopilot's own compass/AHRS heading, so as a "GPS
-    # yaw" it tells the EKF nothing new (EK3_SRC1_YAW=2/3 would loop its compass back, docs/ardupilot.md), and a
-    # receiver that sends none is scored on positions alone (sim/score.py). On: for a display that wants it.
-    send_yaw: bool = False
+    # GPS_INPUT.yaw from the compass heading (36000 = north). Never a yaw source (EK3_SRC1_YAW=2/3 would loop the
+    # compass back, docs/ardupilot.md), but ArduPilot Rover SITL drove its square closer to our track with it
+    # (error over reported accuracy 2.7 against 3.4 without, one mission each). The synthetic profiles leave it
+    # off: the simulator only scores, and a reported first yaw turns the scored track by its compass error
+    # (sim/score.py, docs/taco_plus.md "The map's offset").
+    send_yaw: bool = True
     leap_seconds: int = field(default=18, metadata=bounded(0, 60))  # GPS - UTC for time_week/time_week_ms
     statustext_interval_s: float = field(default=5.0, metadata=bounded(0.0))  # rate limit of fix STATUSTEXTs
     # GLOBAL_POSITION_SENSOR target (PX4): 0 = the autopilot's sysid / broadcast component.
