@@ -142,9 +142,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         inc = tick.inc
         dt = max(inc.dt, 1e-6)
-        Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q)
-        if len(self.ukf.x) > len(Q):  # the map's offset is constant
-            Q = np.pad(Q, (0, len(self.ukf.x) - len(Q)))
+        Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q, n=len(self.ukf.x))
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
 
     def _odometry_sigma(self, tick: _Tick) -> float:
@@ -362,8 +360,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
                 return None
         window = max(q.confirm_window_s, 3.0 * max(latency_s, 0.0))
         held = [h for h in self._held if t - h[1] <= window]
-        near = [(float(np.linalg.norm(innov - h[0])) - q.confirm_agree_per_m * abs(self._odo - h[2]), i)
-                for i, h in enumerate(held)]
+        near = [(self._disagreement(innov, self._odo, h[0], h[2]), i) for i, h in enumerate(held)]
         near = [(d, i) for d, i in near if d <= q.confirm_agree_m]
         if near:
             i = min(near)[1]
@@ -408,12 +405,16 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         if self.q.guard and self._misses_in_row >= self.q.guard_gate_misses:
             self._distrust_zupt()
 
+    def _disagreement(self, innov_a: np.ndarray, odo_a: float, innov_b: np.ndarray, odo_b: float) -> float:
+        """How far two answers' corrections z - x (ENU m) differ beyond what the IMU may drift between them
+        (confirm_agree_per_m of the distance driven, odometer readings odo_a / odo_b m); they agree when this is
+        at most confirm_agree_m (held answers, `_hold`; rejected ones, `_gate_misses_agree`)."""
+        return float(np.linalg.norm(innov_a - innov_b)) - self.q.confirm_agree_per_m * abs(odo_a - odo_b)
+
     def _gate_misses_agree(self) -> bool:
         """Whether the last guard_gate_misses innovation-gate rejections imply the same correction (`_failed`)."""
-        q, kept = self.q, self._gate_innovs
-        if len(kept) < q.guard_gate_misses:
-            return True  # rejections without their vectors (none here): keep the cautious rule
-        return all(float(np.linalg.norm(a[0] - b[0])) <= q.confirm_agree_m + q.confirm_agree_per_m * abs(a[1] - b[1])
+        kept = self._gate_innovs
+        return all(self._disagreement(a[0], a[1], b[0], b[1]) <= self.q.confirm_agree_m
                    for i, a in enumerate(kept) for b in kept[i + 1:])
 
     def _settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:

@@ -128,12 +128,13 @@ def bias_decay(dt: float, p: PlusParams) -> float:
     return math.exp(-dt / p.compass_bias_tau_s)
 
 
-def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams) -> np.ndarray:
+def process_noise_plus(theta: float, dt: float, distance: float, p: PlusParams, n: int | None = None) -> np.ndarray:
     """Q (5x5, or 6x6 with the compass bias) for one predict over `dt` seconds and `distance` metres at
     heading theta (ENU rad): position random walk plus distance-proportional body-frame terms rotated into
-    ENU, heading, speed-error and bias random walks, and the compass bias's Gauss-Markov driving noise."""
-    n = n_states(p)
-    q55 = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2) if n == 6 else 0.0
+    ENU, heading, speed-error and bias random walks, and the compass bias's Gauss-Markov driving noise.
+    n: the filter's size when it is larger (8: the map's offset, constant, zero rows); default n_states(p)."""
+    n = n_states(p) if n is None else n
+    q55 = p.compass_bias_sigma_rad**2 * (1.0 - bias_decay(dt, p) ** 2) if n >= 6 else 0.0
     return _kernels.process_noise_plus(float(theta), float(dt), float(distance), n, q55, p.q_pos_mps, p.q_fwd_per_m,
                                        p.q_lat_per_m, p.q_theta_rad, p.q_speed_mps, p.q_bias_mps2)  # compiled
 

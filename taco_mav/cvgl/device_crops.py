@@ -28,7 +28,7 @@ from __future__ import annotations
 import threading
 import weakref
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import torch
@@ -39,7 +39,7 @@ from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.satellite import CropPlan, SatelliteMap
 from taco_mav.errors import OffMapError
 
-__all__ = ["DeviceCropper", "DeviceCrops", "GeometryMatcher", "uses_device_crops"]
+__all__ = ["DeviceCropper", "DeviceCrops", "GeometryMatcher"]
 
 DEVICE_MOSAIC_MAX_MB = 512.0
 WINDOW_MAX_PX = 4_000_000
@@ -78,11 +78,6 @@ class GeometryMatcher(Protocol):
     def match_crops(self, frame: GroundFrame, crops: DeviceCrops) -> list[MatchResult]:
         """One MatchResult per present crop, in order."""
         ...
-
-
-def uses_device_crops(matcher: Any) -> bool:
-    """True when the matcher has the GeometryMatcher capability and its switch is on."""
-    return bool(getattr(matcher, "device_crops", False)) and isinstance(matcher, GeometryMatcher)
 
 
 def _theta(plan: CropPlan, size_px: int, x0: int, y0: int, w: int, h: int) -> np.ndarray:

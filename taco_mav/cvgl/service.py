@@ -46,7 +46,7 @@ def _check_results(results: object, n: int) -> list[MatchResult]:
     return list(results)
 
 
-def _device_crops(matcher: object) -> bool:
+def uses_device_crops(matcher: object) -> bool:
     """The matcher cuts its own crops on its device (taco_mav.cvgl.device_crops.GeometryMatcher, switched on by
     fg2.device_crops); checked by attribute so that torch is not imported here."""
     return (bool(getattr(matcher, "device_crops", False)) and callable(getattr(matcher, "cut_crops", None))
@@ -86,7 +86,7 @@ class FixService:
     def _cut_on_device(self, query: FixQuery) -> Any:
         """The query's crops cut by the matcher on its device (DeviceCrops: off-map ones flagged and counted)."""
         centres = self.origin + np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
-        matcher: Any = self.matcher  # a GeometryMatcher (checked by _device_crops)
+        matcher: Any = self.matcher  # a GeometryMatcher (checked by uses_device_crops)
         batch = matcher.cut_crops(self.map, centres, query.heading, self.size, self.m_per_px)
         for exc in batch.errors:
             if exc is not None:
@@ -98,7 +98,7 @@ class FixService:
         """MatchResults aligned with query.crop_centres (None for crops off the map). ValueError when the
         matcher's answer is malformed (wrong count, type or shape)."""
         t0 = time.perf_counter()
-        if self.map is not None and _device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
+        if self.map is not None and uses_device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
             batch = self._cut_on_device(query)
             present = list(batch.present)
             t1 = time.perf_counter()
