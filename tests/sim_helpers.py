@@ -34,14 +34,17 @@ def free_udp_port() -> int:
 class EchoCompanion:
     """Listens on udpin:127.0.0.1:port, answers with HEARTBEATs, asks for GPS1_TYPE, SET_MESSAGE_INTERVAL
     and TIMESYNC once, and sends GPS_INPUT every `period_s` of `clock` (the simulator's clock) at the last
-    SIMSTATE position plus `offset_deg` (lat, lon degrees)."""
+    SIMSTATE position plus `offset_deg` (lat, lon degrees). `stall_at` (autopilot s since its first GPS_INPUT,
+    wall s): at that time the companion sleeps that many wall seconds (a stalled process); wall s None: it
+    never sends again."""
 
     def __init__(self, port: int, clock: Callable[[], float], period_s: float = 0.2, gps_id: int = 0,
-                 offset_deg: tuple[float, float] = (0.0, 0.0), h_acc: float = 1.0) -> None:
+                 offset_deg: tuple[float, float] = (0.0, 0.0), h_acc: float = 1.0,
+                 stall_at: tuple[float, float | None] | None = None) -> None:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=191,
                                                dialect="ardupilotmega")
         self.clock, self.period_s, self.gps_id = clock, period_s, gps_id
-        self.offset_deg, self.h_acc = offset_deg, h_acc
+        self.offset_deg, self.h_acc, self.stall_at = offset_deg, h_acc, stall_at
         self.received: dict[str, list[Any]] = {}
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -79,7 +82,12 @@ class EchoCompanion:
                 continue
             now = self.clock()
             if next_out is None:
-                next_out = now
+                next_out = first = now
+            if self.stall_at is not None and now - first >= self.stall_at[0]:
+                if self.stall_at[1] is None:
+                    continue
+                self.stop.wait(self.stall_at[1])
+                self.stall_at = None
             if now >= next_out:
                 next_out += self.period_s
                 s = states[-1]

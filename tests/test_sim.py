@@ -7,6 +7,7 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -145,12 +146,13 @@ def test_bad_options() -> None:
 
 # --------------------------------------------------------------------------------------------- live
 
-def _run_echo(d: SimDrive, lockstep: bool) -> tuple[Simulator, EchoCompanion, float]:
+def _run_echo(d: SimDrive, lockstep: bool, stall_at: tuple[float, float | None] | None = None,
+              **options: Any) -> tuple[Simulator, EchoCompanion, float]:
     """Play `d` at 10x over real UDP to an EchoCompanion on the simulator's clock; also the wall seconds taken."""
     port = free_udp_port()
     sim = Simulator(d, f"udpout:127.0.0.1:{port}", speed=10.0, lockstep=lockstep, wait_companion_s=5.0,
-                    drain_s=0.3)
-    comp = EchoCompanion(port, sim.clock).start()
+                    drain_s=0.3, **options)
+    comp = EchoCompanion(port, sim.clock, stall_at=stall_at).start()
     wall0 = time.monotonic()
     try:
         sim.start()
@@ -195,6 +197,22 @@ def test_live_echo_companion_lockstep(tmp_path: Path) -> None:
     _check_services_and_streams(sim, comp)
     path = write_results(doc, tmp_path)
     assert json.loads(path.read_text())["summary"]["median_ate_m"] == pytest.approx(seq["ate_m"])
+
+
+def test_lockstep_waits_out_a_stalled_companion_and_gives_up_quickly_on_a_silent_one() -> None:
+    """A companion stalled 2 s wall (a loaded machine: GC, scheduling) keeps its rate on the autopilot clock:
+    lockstep holds the clock. One that stops sending costs the first wait, then short ones: 10 s of silence
+    (100 samples) take seconds of wall time, and every late sample is counted."""
+    sim, _, _ = _run_echo(_line_drive(n=201), lockstep=True, stall_at=(5.0, 2.0))
+    seq = sim.results()["sequences"]["line"]
+    assert seq["consecutive_gaps_over_245ms"] == 0 and sim.lockstep_timeouts == 0
+    assert seq["ekf_gates_ok"]
+
+    sim, _, wall = _run_echo(_line_drive(n=201), lockstep=True, stall_at=(10.0, None), lockstep_timeout_s=1.0,
+                             lockstep_timeout_behind_s=0.02)
+    seq = sim.results()["sequences"]["line"]
+    assert sim.lockstep_timeouts >= 90 and seq["gps_input_count"] <= 10.0 * 5 + 2  # silent after 10 s at 5 Hz
+    assert wall < 1.0 + 100 * (0.02 + 0.1) + 4.0  # one long wait, short ones, the paced 20 s at 10x and slack
 
 
 def test_live_real_time_pacing() -> None:
