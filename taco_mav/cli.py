@@ -64,10 +64,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "Karlsruhe)")
     p.add_argument("--along-drive", help="a KITTI raw drive directory whose GPS track the roads follow")
     p.add_argument("--imu", default="automotive", choices=IMU_PRESETS, help="IMU noise preset (default automotive)")
-    p.add_argument("--realism", default="flat", choices=("flat", "3d"),
-                   help="flat: the mosaic is the ground (fast); 3d: buildings, trees, cars, poles rendered in "
-                   "perspective, the mosaic an aerial photo of another day with a ~1 m georeferencing error (run "
-                   "it with --profile synthetic_3d) (default flat)")
+    p.add_argument("--realism", choices=("flat", "3d"),
+                   help="3d: buildings, trees, cars, poles rendered in perspective, the mosaic an aerial photo of "
+                   "another day with a ~1 m georeferencing error (run it with --profile synthetic_3d); flat: the "
+                   "mosaic is the ground (fast; --profile synthetic) (default 3d; flat with --along-drive)")
     _force(p, "the world")
     p.set_defaults(func=offline.cmd_world)
 

@@ -114,14 +114,30 @@ def test_negative_option_values_parse(argv: list[str], attr: str, value: object)
     assert getattr(args, attr) == value
 
 
-def test_world_in_the_southern_hemisphere(tmp_path: Path) -> None:
-    """`world --centre -35.36,149.17` (no '=') builds a world there: UTM zone 55 south; `--realism 3d` gives its
-    aerial map a georeferencing offset of about a metre."""
+def test_world_in_the_southern_hemisphere(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`world --centre -35.36,149.17` (no '=') builds a world there: UTM zone 55 south; 3-D by default (no
+    --realism), its aerial map with a georeferencing offset of about a metre, and the profile to run it named."""
     assert cli.main(["world", "-q", "--out", str(tmp_path / "w"), "--centre", "-35.363261,149.165230",
-                     "--length-km", "0.06", "--realism", "3d"]) == 0
+                     "--length-km", "0.06"]) == 0
     meta = json.loads((tmp_path / "w" / "world.json").read_text())
     assert meta["centre"] == [-35.363261, 149.165230] and meta["crs_epsg"] == 32755
-    assert 0.8 <= math.hypot(*meta["aerial"]["georef_offset_m"]) <= 1.2
+    assert meta["realism"] == "3d" and 0.8 <= math.hypot(*meta["aerial"]["georef_offset_m"]) <= 1.2
+    assert "(3d; run it with --profile synthetic_3d --estimator taco+)" in capsys.readouterr().out
+    from taco_mav.commands.live import world_profile_hint
+    from taco_mav.config import load_profile
+
+    hint = world_profile_hint(tmp_path / "w", load_profile("synthetic"))  # `taco-mav run` logs it as a warning
+    assert hint is not None and "profile synthetic takes the map as exact" in hint and "synthetic_3d" in hint
+    assert world_profile_hint(tmp_path / "w", load_profile("synthetic_3d")) is None
+
+
+def test_world_along_a_real_drive_is_flat_by_default(kitti_root: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """`world --along-drive` has no 3-D layer yet: without --realism it builds a flat world and says so."""
+    drive = kitti_root / "2011_09_26" / "2011_09_26_drive_0005_sync"
+    assert cli.main(["world", "-q", "--out", str(tmp_path / "w"), "--along-drive", str(drive)]) == 0
+    assert json.loads((tmp_path / "w" / "world.json").read_text())["realism"] == "flat"
+    assert "(flat; run it with --profile synthetic)" in capsys.readouterr().out
 
 
 def test_names_agree_with_the_library() -> None:

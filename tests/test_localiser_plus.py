@@ -419,18 +419,24 @@ def test_rejected_answers_widen_the_reported_accuracy_only_when_they_agree():
     sent the accuracy to 17 m (fix type 1) while the estimate was within 2 m."""
     d = _drive()
     oracle = OracleMatcher(d, seed=2)
-    for offsets, widened in (([(-6.0, -30.0), (-36.0, 2.0)], False), ([(25.0, 5.0), (25.5, 4.0)], True)):
+    agreeing = [(25.0, 5.0), (25.5, 4.0)]
+    w_min = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, guard_w_min=0.6))
+    # (offsets, match weight, params, widened): the last two with plus.guard_w_min 0.6 (profile synthetic_3d),
+    # where agreeing answers count only when the matcher is confident in them
+    for offsets, w, params, widened in (([(-6.0, -30.0), (-36.0, 2.0)], 0.95, PLUS, False),
+                                        (agreeing, 0.95, PLUS, True), (agreeing, 0.45, w_min, False),
+                                        (agreeing, 0.95, w_min, True)):
         hits = []
 
-        def planted(q, offsets=offsets, hits=hits):
-            if 60.0 < q.capture_t and len(hits) < 2:  # two wrong answers in a row, confident, far off
+        def planted(q, offsets=offsets, hits=hits, w=w):
+            if 60.0 < q.capture_t and len(hits) < 2:  # two wrong answers in a row, far off
                 hits.append(q.capture_t)
-                return answers_at(q, np.array(d.pose_at(q.capture_t)[:2]) + offsets[len(hits) - 1])
+                return answers_at(q, np.array(d.pose_at(q.capture_t)[:2]) + offsets[len(hits) - 1], w=w)
             return oracle.answer(q)
 
-        loc, err, sig = run_plus(d, planted=planted)
+        loc, err, sig = run_plus(d, params=params, planted=planted)
         reasons = [o.reason for o in loc.outcomes if 60.0 < o.capture_t <= hits[-1] + 1e-9]
         notes = [k for t, k, _ in loc.lock_events if k == "fixes_disagree"]
         assert reasons[-2:] == ["innovation_gate"] * 2, reasons
-        assert bool(notes) is widened, (offsets, notes)
-        assert bool(sig.max() > 10.0) is widened, sig.max()
+        assert bool(notes) is widened, (offsets, w, notes)
+        assert bool(sig.max() > 10.0) is widened, (w, sig.max())

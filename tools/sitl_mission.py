@@ -202,7 +202,10 @@ def build_world(out: Path, spec: MissionSpec) -> Path:
     world = out / "world"
     if not (world / "world.json").exists():
         subprocess.run([sys.executable, "-m", "taco_mav.cli", "world", "-q", "--out", str(world), "--seed",
-                        str(spec.world_seed), "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}"],
+                        str(spec.world_seed), "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}",
+                        # flat: the rover profiles model no map offset (map.georef_sigma_m 0), and the mission
+                        # checks (error over reported accuracy) are set on an exact map
+                        "--realism", "flat"],
                        check=True)
     return world
 

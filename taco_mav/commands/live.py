@@ -7,6 +7,7 @@ import argparse
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 from taco_mav import checks
 from taco_mav.cli_support import EXIT_INTERRUPTED
@@ -37,6 +38,18 @@ def check_camera_and_map(args: argparse.Namespace, matcher: str) -> None:
                          "--camera world:DIR brings its own)")
 
 
+def world_profile_hint(world_dir: Path, profile: Any) -> str | None:
+    """The warning for a 3-D world (`taco-mav world`, its aerial map ~1 m off) run with a profile that takes
+    the map as exact (map.georef_sigma_m 0); None when the pair fits."""
+    from taco_mav.datasets.synthetic.world3d import world_is_3d
+
+    if profile.map.georef_sigma_m > 0.0 or not world_is_3d(world_dir):
+        return None
+    return (f"--camera world:{world_dir} is a 3-D world whose aerial map is georeferenced about 1 m off; profile "
+            f"{profile.name} takes the map as exact (map.georef_sigma_m 0): --profile synthetic_3d --estimator "
+            "taco+ models the offset")
+
+
 def check_connect(text: str, baud: int) -> None:
     """--connect: a network form with HOST:PORT, or a serial device path (an absent device is a runtime error,
     found when the daemon opens it); a word followed by ':' that is no known scheme is a typo."""
@@ -64,6 +77,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     estimator = Estimator(args.estimator) if args.estimator else profile.estimator
     signing = key_file(args.signing_key) if args.signing_key else None
     check_camera_and_map(args, profile.matcher)
+    if args.camera and args.camera.startswith("world:") and (hint := world_profile_hint(
+            Path(args.camera[len("world:"):]), profile)):
+        log.warning(hint)
     if args.log_dir:
         checks.output_dir(args.log_dir, "--log-dir", create=False)
     from taco_mav.datasets.synthetic import register_world_camera

@@ -60,12 +60,14 @@ def cmd_world(args: argparse.Namespace) -> int:
     checks.number(args.length_km, "--length-km", 0.05, 50.0)
     along = checks.input_dir(args.along_drive, "--along-drive") if args.along_drive else None
     out = checks.fresh_folder(checks.output_dir(args.out), "world.json", args.force)
+    realism = args.realism or ("flat" if along else "3d")  # 3-D along a real drive is not built yet
     from taco_mav.datasets.synthetic import build_world
 
     path = build_world(out, seed=args.seed, length_km=args.length_km,
                        centre=(centre[0], centre[1]) if centre else None, along_drive=along,
-                       imu_preset=args.imu, progress=show_progress(args), realism=args.realism)
-    print(f"wrote world {path}")
+                       imu_preset=args.imu, progress=show_progress(args), realism=realism)
+    profile = "synthetic_3d --estimator taco+" if realism == "3d" else "synthetic"
+    print(f"wrote world {path} ({realism}; run it with --profile {profile})")
     return 0
 
 

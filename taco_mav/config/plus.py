@@ -57,12 +57,15 @@ class PlusConfig:
     # Closed-loop safety guard (issue 19, core/imu_check.py): the estimate against the IMU-only track since the
     # last accepted fix; a disagreement beyond guard_k combined sigmas (and guard_floor_m) keeps the reported
     # variance at least the disagreement squared and holds zero-velocity updates off; guard_gate_misses
-    # consecutive innovation-gate rejections widen the position uncertainty by half the disagreement.
+    # consecutive innovation-gate rejections widen the position uncertainty by half the disagreement, when they
+    # agree and each has a match weight w of at least guard_w_min (0: any w). A matcher's low-w answers that
+    # land elsewhere are its chance peaks on a repetitive street, not evidence that the estimate is off.
     guard: bool = True
     guard_k: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))
     guard_floor_m: float = field(default=2.0, metadata=bounded(0.0))
     guard_zupt_holdoff_s: float = field(default=10.0, metadata=bounded(0.0))
     guard_gate_misses: int = field(default=2, metadata=bounded(1))
+    guard_w_min: float = field(default=0.0, metadata=bounded(0.0, 1.0))
     # Covariance trigger: a fix when the filter's 1-sigma reaches this (or after trigger_time_s moving).
     trigger_sigma_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))
     trigger_time_s: float = field(default=10.0, metadata=bounded(0.0, open_lo=True))

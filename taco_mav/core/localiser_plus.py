@@ -68,7 +68,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         self._guard_added = 0.0  # position variance the guard added since the last accepted fix, m^2
         self._guard_flagged = False
         self._zupt_holdoff_until = -math.inf
-        self._gate_misses = 0  # consecutive innovation-gate rejections
+        self._gate_misses = 0  # consecutive innovation-gate rejections (of at least plus.guard_w_min)
         self._gate_innovs: list[tuple[np.ndarray, float]] = []  # ... their z - x (ENU m) and odometer (m)
         self._misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
         self._report_floor_m = 0.0  # 1-sigma floor on the reported (not the filter's) position accuracy, m
@@ -297,7 +297,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         else:
             gate = qp.chi2_gate if c.support > 1 else qp.chi2_gate_single
         if nis > gate:
-            self._failed("innovation_gate", jump, innov)
+            self._failed("innovation_gate", jump, innov if c.weight >= qp.guard_w_min else None)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
         held = self._hold(state, innov, jump, Pz, now, now - q.capture_t)
@@ -385,12 +385,14 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
         (the corrections z - x they imply within confirm_agree_m plus confirm_agree_per_m of the distance driven
         between them, as held answers): the camera then keeps saying the estimate is elsewhere. Rejected answers
         that scatter are the matcher's chance peaks (a 3-D street), not evidence against the estimate.
-        innov: the rejected answer's z - x (ENU m), for that comparison."""
+        innov: the rejected answer's z - x (ENU m), for that comparison; None for one too weak to count
+        (plus.guard_w_min), which breaks the run."""
         was_lost = self.lock.state is LockState.LOST
         if reason != "no_results":
             self._misses_in_row += 1
-        self._gate_misses = self._gate_misses + 1 if reason == "innovation_gate" else 0
-        if reason == "innovation_gate" and innov is not None:
+        counts = reason == "innovation_gate" and innov is not None
+        self._gate_misses = self._gate_misses + 1 if counts else 0
+        if counts:
             self._gate_innovs = (self._gate_innovs + [(np.array(innov, dtype=float), self._odo)])[-self.q.guard_gate_misses:]
         else:
             self._gate_innovs = []

@@ -64,6 +64,7 @@ class PlusParams:
     guard_floor_m: float = 2.0
     guard_zupt_holdoff_s: float = 10.0
     guard_gate_misses: int = 2
+    guard_w_min: float = 0.0  # rejected answers below this match weight do not widen the reported accuracy
     # trigger and search
     trigger_sigma_m: float = 3.0
     trigger_time_s: float = 10.0

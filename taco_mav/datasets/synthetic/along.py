@@ -103,7 +103,7 @@ def build_along_world(out: Path, drive_dir: Path, seed: int = 0, progress: bool 
         "m_per_px": M_PER_PX, "drive": drive_rel.as_posix(), "drive_name": kd.name, "truth": "truth.npz",
         "frames": (drive_rel / "frames" / "timestamps.txt").as_posix(), "imu_rate_hz": rate,
         "frame_rate_hz": rate / every, "imu_noise": "real (KITTI OXTS RT3003)", "camera": asdict(cam),
-        "length_m": float(s[-1]), "duration_s": float(t[-1]), "along_drive": kd.name,
+        "length_m": float(s[-1]), "duration_s": float(t[-1]), "along_drive": kd.name, "realism": "flat",
     }
     (out / "world.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     steps.update()
