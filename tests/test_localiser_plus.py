@@ -440,3 +440,16 @@ def test_rejected_answers_widen_the_reported_accuracy_only_when_they_agree():
         assert reasons[-2:] == ["innovation_gate"] * 2, reasons
         assert bool(notes) is widened, (offsets, w, notes)
         assert bool(sig.max() > 10.0) is widened, (w, sig.max())
+
+
+def test_isotropic_fix_noise_takes_the_mean_of_the_papers_two_sigmas():
+    """plus.fix_isotropic (profile synthetic_3d, a matcher whose errors are round): every accepted fix carries
+    forward = lateral sigma, the mean of the paper's 1:2 pair for its w; off, the pair keeps the paper's ratio."""
+    d = _drive()
+    iso = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, fix_isotropic=True))
+    for params, ratio in ((PLUS, 2.0), (iso, 1.0)):
+        loc, _, _ = run_plus(d, params=params)
+        taken = [o for o in loc.outcomes if o.accepted]
+        assert len(taken) >= 5
+        assert all(abs(o.sigma_lat / o.sigma_fwd - ratio) < 1e-9 for o in taken), [(o.sigma_fwd, o.sigma_lat)
+                                                                                  for o in taken]

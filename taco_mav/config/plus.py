@@ -115,6 +115,10 @@ class PlusConfig:
     # (the classical matcher on 3-D worlds settles at 0.34-0.40) starts there, so the first fixes, the ones
     # near the start that teach the map's offset, are not discarded as 3x too noisy.
     fix_scale_initial: float = field(default=1.0, metadata=bounded(0.0, open_lo=True))
+    # Both fix sigmas the mean of the paper's forward and lateral ones (Sec. III-F maps w to a 1:2 ellipse, FG2's
+    # error shape); for a matcher whose errors are round (the classical one on 3-D streets, docs/matchers.md).
+    # taco+ only: paper mode keeps the paper's (its own ablation is ukf.anisotropic).
+    fix_isotropic: bool = False
     # Reported accuracy (issue 18): the filter's position covariance times the a-posteriori variance factor of the
     # accepted fixes (mean NIS / 2 over report_window fixes, clipped to [report_factor_min, report_factor_max]).
     # The filter keeps its process-noise margin (it tracks better with it); what it reports is made honest (while

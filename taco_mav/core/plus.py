@@ -91,6 +91,7 @@ class PlusParams:
     fix_scale_max: float = 2.0
     fix_scale_window: int = 10
     fix_scale_initial: float = 1.0  # the scale before any fix taught one
+    fix_isotropic: bool = False  # both fix sigmas the mean of the paper's two (a matcher with round errors)
     # reported accuracy: the filter's covariance times the a-posteriori variance factor of the fixes
     report_calibration: bool = True
     report_window: int = 20
