@@ -7,12 +7,15 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from taco_mav import checks
 from taco_mav.cli_support import EXIT_INTERRUPTED
 from taco_mav.commands.offline import show_progress
 from taco_mav.errors import UsageError
+
+if TYPE_CHECKING:
+    from taco_mav.config import Profile
 
 log = logging.getLogger("taco_mav")
 
@@ -38,7 +41,7 @@ def check_camera_and_map(args: argparse.Namespace, matcher: str) -> None:
                          "--camera world:DIR brings its own)")
 
 
-def world_profile_hint(world_dir: Path, profile: Any) -> str | None:
+def world_profile_hint(world_dir: Path, profile: Profile) -> str | None:
     """The warning for a 3-D world (`taco-mav world`, its aerial map ~1 m off) run with a profile that takes
     the map as exact (map.georef_sigma_m 0); None when the pair fits."""
     from taco_mav.datasets.synthetic.world3d import world_is_3d
