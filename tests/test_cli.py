@@ -340,15 +340,21 @@ def test_drift_reads_every_input_before_measuring(tmp_path: Path, capsys: pytest
 # ---------------------------------------------------------------- Ctrl-C
 
 
+def _sigint_default() -> None:
+    """In the child before exec: SIGINT back to its default. A suite started in the background of a
+    non-interactive shell (`nohup ... &`) ignores SIGINT, a child inherits that, and Python then installs no
+    KeyboardInterrupt handler: the demo would never see the Ctrl-C."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_in_the_demo_exits_130_and_writes_what_was_played(tmp_path: Path) -> None:
     """SIGINT once the drive is playing: exit 130, no traceback, the summary says interrupted and the run
     folder holds the scoring of what was played."""
     out = tmp_path / "demo"
-    # real time: the ~150 s drive outlasts the 8 s below by far however loaded the machine (at 4x, a CI run once
-    # got exit 0: the demo had ended before the signal)
+    # real time: the ~150 s drive outlasts the 8 s below by far however loaded the machine
     proc = subprocess.Popen([sys.executable, "-m", "taco_mav.cli", "demo", "-q", "--out", str(out), "--speed", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONUNBUFFERED="1"))
+                            env=dict(os.environ, PYTHONUNBUFFERED="1"), preexec_fn=_sigint_default)
     run = out / "paper-classical"
     try:
         deadline = time.monotonic() + 240
