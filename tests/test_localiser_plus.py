@@ -330,7 +330,7 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
             else:
                 loc.add_fix(q.query_id, oracle.answer(q))
         out[name] = (loc, planted)
-    (old, (o_old, dist, sig)), (new, (o_new, _, _)) = out["old"], out["new"]
+    (_, (o_old, dist, sig)), (new, (o_new, _, _)) = out["old"], out["new"]
     assert dist > 2.0 * math.sqrt(sig**2 + 4.0)  # far beyond what the prior allows
     assert o_old.accepted and o_new.reason == "unconfirmed"
     after = [o for o in new.outcomes if o.capture_t > o_new.capture_t]
