@@ -268,11 +268,12 @@ class Localiser(GnssFusion):
         nis = self._fuse(tick, xy, s_f, s_l)
         return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
 
-    def _fix_sigmas(self, w: float) -> tuple[float, float]:
-        """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F)."""
+    def _fix_sigmas(self, w: float, anisotropic: bool | None = None) -> tuple[float, float]:
+        """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F); anisotropic:
+        None for ukf.anisotropic, False for both the mean of the two."""
         p = self.p
         return fix_sigmas(w, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num, p.fix_lat_min_m,
-                          p.fix_lat_max_m, p.anisotropic)
+                          p.fix_lat_max_m, p.anisotropic if anisotropic is None else anisotropic)
 
     def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float) -> float:
         """Apply a fix (ENU m, body sigmas m) on arrival or at its capture frame `tick` (then required), record

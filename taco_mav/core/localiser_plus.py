@@ -284,9 +284,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, Localiser):
             return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
         if self._defer(c.weight, tick.P):  # weak, and the filter can wait for a better one: ask again
             return self._log(FixOutcome(query_id, False, "deferred", q.capture_t, now, k, z, psi[k], weights=weights))
-        s_f0, s_l0 = self._fix_sigmas(c.weight)  # the matcher's w mapped as in the paper
-        if qp.fix_isotropic:
-            s_f0 = s_l0 = 0.5 * (s_f0 + s_l0)
+        # the matcher's w mapped as in the paper (plus.fix_isotropic: both sigmas their mean)
+        s_f0, s_l0 = self._fix_sigmas(c.weight, False if qp.fix_isotropic else None)
         sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
         s_f, s_l = sc * s_f0, sc * s_l0
         pred, Pz = self.ukf.fix_prediction(tick.x, tick.P)  # position (+ the map's offset), its covariance
