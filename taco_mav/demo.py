@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,12 +49,6 @@ class DemoResult:
     estimator: str = "paper"
     matcher: str = "classical"
     interrupted: bool = False
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def demo_world(out: Path, progress: bool = True) -> Path:
@@ -112,6 +105,7 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
     from taco_mav.config import Estimator
     from taco_mav.datasets.synthetic import register_world_camera
+    from taco_mav.link.connection import free_udp_port
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
@@ -119,7 +113,7 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     register_world_camera()  # the daemon's camera is world:DIR
     world = demo_world(out, progress)
     start = time.monotonic()
-    port = _free_port()
+    port = free_udp_port()
     sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=True, duration_s=duration_s,
                     wait_companion_s=20.0, drain_s=0.3)
     daemon = Daemon(profile,

@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable
 
 from taco_mav.config import Profile, profile_from_dict
+from taco_mav.link.connection import free_udp_port
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
 
@@ -121,7 +122,7 @@ class _Episode:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
-        port = _free_port()
+        port = free_udp_port()
         self.daemon = Daemon(fuzz_profile(opt.imu_message or imu_kind, opt.output_rate_hz),
                              DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
         self.dest = ("127.0.0.1", port)
@@ -189,12 +190,6 @@ class _Episode:
 
     def close(self) -> None:
         self.sock.close()
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _wait(pred: Callable[[], bool], timeout_s: float, ep: _Episode) -> bool:

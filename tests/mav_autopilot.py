@@ -26,15 +26,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.geo import UtmProjector  # noqa: E402
+from taco_mav.link.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
 
 m = mavutil.mavlink
-
-
-def free_udp_port() -> int:
-    """A UDP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass

@@ -5,7 +5,6 @@ simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the 
 from __future__ import annotations
 
 import os
-import socket
 import threading
 from pathlib import Path
 from typing import Any, Callable
@@ -16,18 +15,12 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as apm  # noqa: E402
 
 from taco_mav.geo import gps_week_ms  # noqa: E402
+from taco_mav.link.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
 from taco_mav.link.tlog import TlogWriter  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.source import SimDrive  # noqa: E402
 
 BOOT, UTC = 100.0, 1.7e9  # write_tlog: autopilot seconds at drive time 0, UTC unix seconds at drive time 0
-
-
-def free_udp_port() -> int:
-    """A UDP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class EchoCompanion:

@@ -5,27 +5,21 @@ the daemon's summary; the same path as tests/test_live.py's run_live.
     python tools/live_world.py W [--profile synthetic_3d] [--estimator taco+] [--speed 5] [--deny-after 1]
                                  [--gnss-noise 1] [--set plus.trigger_distance_m=40 ...] [--out results.json]
 
-World: `taco-mav world --out W --seed S --realism 3d` (profile synthetic_3d; a flat world: --profile synthetic). ATE is metres over the whole drive (DESIGN.md), with
-GNSS (the simulator's receiver) for the first --deny-after seconds only.
+World: `taco-mav world --out W --seed S` (3-D by default: profile synthetic_3d; a flat world, `--realism flat`:
+--profile synthetic). ATE is metres over the whole drive (DESIGN.md), with GNSS (the simulator's receiver) for
+the first --deny-after seconds only.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import socket
 import sys
 import time
 from pathlib import Path
 
 KEYS = ("ate_m", "ate_unaligned_m", "ate_denied_m", "max_error_m", "ekf_gate_pass_fraction", "horiz_accuracy_p50_m",
         "fix_type_counts", "gps_input_rate_hz", "length_km")
-
-
-def _port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from taco_mav.config import Estimator, load_profile, replace_in
+    from taco_mav.link.connection import free_udp_port
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator
 
@@ -48,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in args.set:
         key, _, value = item.partition("=")
         prof = replace_in(prof, key, json.loads(value))
-    port = _port()
+    port = free_udp_port()
     sim = Simulator(args.world, f"udpout:127.0.0.1:{port}", speed=args.speed, lockstep=True, wait_companion_s=10.0,
                     drain_s=0.3, deny_after_s=args.deny_after, gnss_noise_m=args.gnss_noise)
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{args.world}",

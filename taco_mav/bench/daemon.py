@@ -28,7 +28,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import socket
 import threading
 import time
 
@@ -40,6 +39,7 @@ from pymavlink import mavutil  # noqa: E402
 from taco_mav.bench.fusion import _drive as _weaving_drive  # noqa: E402
 from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.core import ukf_kernels  # noqa: E402
+from taco_mav.link.connection import free_udp_port  # noqa: E402
 from taco_mav.link.daemon import Daemon, DaemonOptions  # noqa: E402
 from taco_mav.link.eventlog import EventLog  # noqa: E402
 
@@ -81,12 +81,6 @@ def imu_path_latency(estimator: str = "paper", duration_s: float = IMU_PATH_S) -
             wall.append(stop - start)
             cpu.append(c1 - c0)
     return np.array(wall), np.array(cpu)
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _play(port: int, duration: float, arrivals: list[float], speed: float = 1.0) -> None:
@@ -137,7 +131,7 @@ def _play(port: int, duration: float, arrivals: list[float], speed: float = 1.0)
 
 def _drive(duration: float, speed: float) -> tuple[Daemon, list[float]]:
     """One daemon against the player at `speed`; (the stopped daemon, GPS_INPUT arrivals in autopilot s)."""
-    port = _free_port()
+    port = free_udp_port()
     daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)

@@ -19,6 +19,7 @@ import logging
 import os
 import re
 import select
+import socket
 import time
 from collections import Counter
 from pathlib import Path
@@ -41,6 +42,13 @@ _MAX_SKIP = 500
 _BAD_DATA_REASONS = (("Bad prefix", "bad_prefix"), ("invalid MAVLink CRC", "bad_crc"),
                      ("invalid MAVLink message length", "bad_length"), ("invalid incompat_flags", "bad_flags"),
                      ("Invalid signature", "signature"), ("Unable to", "bad_payload"))
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago (for loopback pairs: the demo, the bench, tests)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def parse_connection(conn: str, default_baud: int) -> tuple[str, int]:

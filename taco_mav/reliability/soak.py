@@ -104,6 +104,7 @@ def soak(hours: float = 1.0, speed: float = 20.0, log_dir: Path | None = None, s
     document (see the module docstring). log_dir: where the daemon writes its logs (a temporary folder by
     default, removed afterwards)."""
     from taco_mav.config import load_profile, replace_in
+    from taco_mav.link.connection import free_udp_port
     from taco_mav.link.daemon import Daemon, DaemonOptions
     from taco_mav.sim import Simulator
     from taco_mav.sim.simulator import SimOptions
@@ -112,7 +113,7 @@ def soak(hours: float = 1.0, speed: float = 20.0, log_dir: Path | None = None, s
     drive = circle_drive(duration + 2.0)
     with tempfile.TemporaryDirectory(prefix="taco-soak-") as tmp:
         logs = Path(log_dir) if log_dir is not None else Path(tmp)
-        port = _free_udp_port()
+        port = free_udp_port()
         sim = Simulator(drive, f"udpout:127.0.0.1:{port}", speed=speed,
                         options=SimOptions(lockstep=True, duration_s=duration, wait_companion_s=10.0, drain_s=0.3))
         profile = replace_in(load_profile("kitti"), "matcher", "emulator")
@@ -136,14 +137,6 @@ def soak(hours: float = 1.0, speed: float = 20.0, log_dir: Path | None = None, s
         wall = time.monotonic() - wall0
         doc = sim.results()
     return _report(hours, speed, wall, samples, sim, doc, daemon)
-
-
-def _free_udp_port() -> int:
-    import socket
-
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _sample(daemon: Any, sim: Any, logs: Path, wall0: float, before: frozenset[int]) -> dict[str, Any]:
