@@ -25,7 +25,7 @@ from taco_mav.core.gate import passes_yaw_gate, yaw_residual
 from taco_mav.core.gnss_fusion import GnssFusion, GnssMeasurement
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.preintegration import Increment, Preintegrator
-from taco_mav.core.search import (TriggerReason, best_candidate, cross_offsets, cross_spacing, fix_position,
+from taco_mav.core.search import (best_candidate, cross_offsets, cross_spacing, fix_position,
                                   forward_bias, search_centres, trigger_reason)
 from taco_mav.core.smoother import FixNode, SmoothResult, smooth
 from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
