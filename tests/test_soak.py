@@ -5,6 +5,7 @@ Every growing structure stays within its bound, the GPS_INPUT rate is 300 per da
 from __future__ import annotations
 
 import math
+import mmap
 import threading
 
 import numpy as np
@@ -55,7 +56,12 @@ def test_circle_drive_is_a_consistent_lap() -> None:
 
 
 def test_rss_reads_this_process() -> None:
+    """50 MiB of fresh anonymous pages, written: the resident set grows by them. (An array from the heap could
+    reuse pages an allocator kept resident from an earlier test: then nothing grows.)"""
     before = rss_mb()
-    block = np.ones(50 * 2**20 // 8)  # 50 MiB touched
-    assert rss_mb() - before > 40.0
-    del block
+    block = mmap.mmap(-1, 50 * 2**20)
+    try:
+        block.write(b"\x01" * len(block))
+        assert rss_mb() - before > 40.0
+    finally:
+        block.close()

@@ -25,7 +25,9 @@ from taco_mav.cvgl.ipm import BevProjector
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GroundMotion", "Motion"]
+__all__ = ["GroundMotion", "Motion", "MIN_GAP_S"]
+
+MIN_GAP_S = 0.05  # the shortest time between the two frames (a 20 Hz camera's period), s
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,11 @@ class GroundMotion:
             R = cv2.getRotationMatrix2D((u0, v0), math.degrees(rotate_rad), 1.0)
             bev = cv2.warpAffine(bev, R, (bev.shape[1], bev.shape[0]), flags=cv2.INTER_LINEAR)
         return (bev - cv2.GaussianBlur(bev, (0, 0), 8.0)).astype(np.float32)  # local contrast: lighting drops out
+
+    def frame_gap(self, speed_mps: float, longest_s: float) -> float:
+        """Time between the two frames, s: longest_s, shorter at speed so that the ground moves at most half the
+        largest shift looked for (speed in m/s), and at least MIN_GAP_S."""
+        return min(longest_s, max(MIN_GAP_S, 0.5 * self.max_shift_m / max(abs(float(speed_mps)), 0.1)))
 
     def measure(self, image0: np.ndarray, image1: np.ndarray, dtheta: float = 0.0) -> Motion | None:
         """Translation from frame 0 to frame 1 (camera images of this camera's size); dtheta: heading change

@@ -16,7 +16,7 @@ import numpy as np
 
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
-from taco_mav.core.localiser import FixOutcome, Localiser
+from taco_mav.core.localiser import FixOutcome
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
@@ -27,6 +27,7 @@ from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.cvgl.service import FixService
 from taco_mav.datasets.base import Drive
 from taco_mav.errors import MatcherError
+from taco_mav.evaluation.camera_motion import OfflineMotion
 from taco_mav.progress import progress_bar
 
 log = logging.getLogger(__name__)
@@ -117,12 +118,17 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     dead_xy = np.zeros((len(imu), 2))
     reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
+    # taco+'s camera speed, as the daemon feeds it (link/motion.py), on a drive with camera frames
+    motion = (OfflineMotion(drive, camera) if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser)
+              and profile.plus.camera_speed and len(drive.frame_times) >= 2 else None)
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):
         loc.add_imu(sample)
         if len(loc.track) > len(reported):  # a frame closed: what the daemon would report now
             reported.append(_cov3(loc.estimate().cov_xy))
         dead.add(sample)
         dead_xy[i] = (dead.x, dead.y)
+        if motion is not None:
+            motion.tick(loc)
         q = loc.poll_query()
         if q is not None:
             pending.append((q.capture_t + latency_s, q.query_id, service.answer(q, frame_at(q.capture_t))))
@@ -146,5 +152,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         reported_var=np.array(reported) if len(reported) == len(t) else None,
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
-               "lock_events": loc.lock_events if isinstance(loc, PlusLocaliser) else []},
+               "lock_events": loc.lock_events if isinstance(loc, PlusLocaliser) else [],
+               "camera_motion": dict(motion.counts) if motion is not None else {}},
     )

@@ -22,15 +22,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from taco_mav.camera import FrameGuard, FrameRejected
-from taco_mav.cvgl.ground_motion import GroundMotion
+from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion
 
 if TYPE_CHECKING:
     from taco_mav.link.fixes import FixPipeline
 
 log = logging.getLogger(__name__)
-
-MIN_GAP_S = 0.05  # the shortest time between the two frames (a 20 Hz camera's period), s
-
 
 @dataclass(frozen=True)
 class MotionResult:
@@ -121,8 +118,7 @@ class MotionPipeline:
             return
         self._next = loc.t + self.interval_s
         t1 = loc.t - self.lag_s
-        # at most half the largest shift looked for between the two frames
-        gap = min(self.gap_s, max(MIN_GAP_S, 0.5 * self.motion.max_shift_m / max(abs(float(loc.pre.speed)), 0.1)))
+        gap = self.motion.frame_gap(float(loc.pre.speed), self.gap_s)
         try:
             self._jobs.put_nowait((t1 - gap, t1))
         except queue.Full:

@@ -1,0 +1,65 @@
+"""Camera speed in an offline run (issue 19's measurement, as the daemon takes it in `link/motion.py`): every
+`interval_s` of IMU time, the ground-plane motion between the drive's frames nearest t - lag - gap and t - lag
+(`cvgl.ground_motion.GroundMotion`) goes to taco+'s `add_ground_motion`. The daemon measures on a worker
+thread; here it is measured at once, so a re-run gives the same numbers. Without it an offline taco+ run on a
+camera drive would use less than the live daemon does (on a 3-D world with the automotive IMU, the speed error
+between fixes is what the camera holds down).
+
+Times are the drive's (IMU) seconds; headings ENU radians (the Localiser's compass heading, for the heading
+change between the two frames).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from taco_mav.camera_geometry import GroundCamera
+from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion
+from taco_mav.datasets.base import Drive
+
+__all__ = ["OfflineMotion"]
+
+
+class OfflineMotion:
+    """drive: its frame_times (s) and frame(i) images; camera: the drive's ground camera. interval_s, gap_s and
+    lag_s as `link.motion.MotionPipeline`'s. `counts` says what became of each measurement."""
+
+    def __init__(self, drive: Drive, camera: GroundCamera, interval_s: float = 0.5, gap_s: float = 0.3,
+                 lag_s: float = 0.1) -> None:
+        self.drive = drive
+        self.times = np.asarray(drive.frame_times, dtype=float)
+        self.motion = GroundMotion(camera)
+        self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
+        self.counts: Counter[str] = Counter()
+        self._next = -math.inf
+        self._heading_t: list[float] = []
+        self._heading: list[float] = []
+
+    def tick(self, loc) -> None:
+        """After each IMU sample: record the heading; when a measurement is due, measure and hand it to `loc`
+        (a PlusLocaliser)."""
+        if not self._heading_t or loc.t > self._heading_t[-1]:
+            self._heading_t.append(float(loc.t))
+            self._heading.append(float(loc.pre.theta))
+        if loc.t < self._next or self.times.size < 2:
+            return
+        self._next = loc.t + self.interval_s
+        t1 = loc.t - self.lag_s
+        i0, i1 = self._nearest(t1 - self.motion.frame_gap(float(loc.pre.speed), self.gap_s)), self._nearest(t1)
+        ta, tb = float(self.times[i0]), float(self.times[i1])
+        if tb - ta < 0.5 * MIN_GAP_S or tb > loc.t:
+            self.counts["same_frame" if tb - ta < 0.5 * MIN_GAP_S else "future_frame"] += 1
+            return
+        h = np.unwrap(np.asarray(self._heading))
+        dtheta = float(np.interp(tb, self._heading_t, h) - np.interp(ta, self._heading_t, h))
+        m = self.motion.measure(self.drive.frame(i0), self.drive.frame(i1), dtheta)
+        if m is None:
+            self.counts["weak"] += 1
+            return
+        self.counts[loc.add_ground_motion(ta, tb, m.d_fwd, m.d_left, m.sigma_m)] += 1
+
+    def _nearest(self, t: float) -> int:
+        return int(np.argmin(np.abs(self.times - t)))
