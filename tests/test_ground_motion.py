@@ -12,7 +12,7 @@ from rasterio.transform import from_origin
 
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig
-from taco_mav.cvgl.ground_motion import GroundMotion
+from taco_mav.cvgl.ground_motion import GroundMotion, HeadingHistory
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
 E0, N0, RES = 600_000.0, 5_400_000.0, 0.1
@@ -56,3 +56,19 @@ def test_standing_still_measures_zero_and_blank_ground_is_refused() -> None:
     gb = GroundMotion(camb)
     fb = rb.render((E0 + 100.0, N0 + 100.0, 0.0))
     assert gb.measure(fb, rb.render((E0 + 101.0, N0 + 100.0, 0.0))) is None
+
+
+def test_heading_history_interpolates_across_the_wrap_and_restarts_after_the_clock_goes_back() -> None:
+    """The heading change between two frame times: interpolated through +-pi (not the long way round), None more
+    than 0.1 s outside what was recorded; a time more than 1 s earlier than the last (a reboot) starts afresh."""
+    h = HeadingHistory()
+    for k in range(11):  # 3.0 rad -> 3.0 + 0.05 * 10 = 3.5 rad, recorded wrapped to (-pi, pi]
+        h.add(10.0 + 0.1 * k, math.remainder(3.0 + 0.05 * k, 2 * math.pi))
+    assert h.change(10.05, 10.95) == pytest.approx(0.45, abs=1e-9)
+    assert h.change(10.0, 11.05) == pytest.approx(0.5, abs=1e-9)  # just past the last: its value
+    assert h.change(10.0, 11.2) is None
+    assert h.change(9.8, 10.5) is None
+    h.add(10.9, 0.0)  # not after the last, within 1 s: ignored
+    assert h.at(11.0) == pytest.approx(math.remainder(3.5, 2 * math.pi), abs=1e-9)
+    h.add(2.0, 1.0)  # the clock went back: the history restarts
+    assert h.at(2.0) == 1.0 and h.at(10.5) is None

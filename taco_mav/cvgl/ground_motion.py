@@ -13,8 +13,11 @@ pixels; left by l metres moves it right by l / m pixels. Headings ENU radians (C
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
+import threading
+from collections import deque
 from dataclasses import dataclass
 
 import cv2
@@ -25,9 +28,47 @@ from taco_mav.cvgl.ipm import BevProjector
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GroundMotion", "Motion", "MIN_GAP_S"]
+__all__ = ["GroundMotion", "HeadingHistory", "Motion", "MIN_GAP_S"]
 
 MIN_GAP_S = 0.05  # the shortest time between the two frames (a 20 Hz camera's period), s
+
+
+class HeadingHistory:
+    """The compass headings (ENU rad) at recent times (s), for the heading change between two frames. Thread-safe
+    (the daemon adds on its loop thread and reads on the motion worker); the newest `maxlen` kept."""
+
+    def __init__(self, maxlen: int = 4000) -> None:
+        self._h: deque[tuple[float, float]] = deque(maxlen=maxlen)
+        self._lock = threading.Lock()
+
+    def add(self, t: float, theta: float) -> None:
+        """The heading theta (ENU rad) at time t (s); a time not after the last is ignored, unless more than 1 s
+        before it (the clock went back, e.g. an autopilot reboot: the history restarts)."""
+        with self._lock:
+            if self._h and t <= self._h[-1][0]:
+                if t < self._h[-1][0] - 1.0:
+                    self._h.clear()
+                else:
+                    return
+            self._h.append((t, theta))
+
+    def at(self, t: float) -> float | None:
+        """The heading at time t (s), interpolated; None more than 0.1 s outside the history."""
+        with self._lock:
+            h = self._h
+            i = bisect.bisect_left(h, (t, -math.inf))
+            if not h or i == 0 and h[0][0] - t > 0.1 or i == len(h) and t - h[-1][0] > 0.1:
+                return None
+            a, b = h[max(i - 1, 0)], h[min(i, len(h) - 1)]
+        if b[0] == a[0]:
+            return a[1]
+        w = (t - a[0]) / (b[0] - a[0])
+        return a[1] + w * math.remainder(b[1] - a[1], 2 * math.pi)
+
+    def change(self, t0: float, t1: float) -> float | None:
+        """The heading change from t0 to t1 (s), rad in [-pi, pi]; None when either is outside the history."""
+        h0, h1 = self.at(t0), self.at(t1)
+        return None if h0 is None or h1 is None else math.remainder(h1 - h0, 2 * math.pi)
 
 
 @dataclass(frozen=True)

@@ -17,14 +17,14 @@ from collections import Counter
 import numpy as np
 
 from taco_mav.camera_geometry import GroundCamera
-from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion
+from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 from taco_mav.datasets.base import Drive
 
 __all__ = ["OfflineMotion"]
 
 
 class OfflineMotion:
-    """drive: its frame_times (s) and frame(i) images; camera: the drive's ground camera. interval_s, gap_s and
+    """drive: its frame_times (s, at least two) and frame(i) images; camera: the drive's ground camera. interval_s, gap_s and
     lag_s as `link.motion.MotionPipeline`'s. `counts` says what became of each measurement."""
 
     def __init__(self, drive: Drive, camera: GroundCamera, interval_s: float = 0.5, gap_s: float = 0.3,
@@ -35,16 +35,13 @@ class OfflineMotion:
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         self.counts: Counter[str] = Counter()
         self._next = -math.inf
-        self._heading_t: list[float] = []
-        self._heading: list[float] = []
+        self.headings = HeadingHistory()
 
     def tick(self, loc) -> None:
         """After each IMU sample: record the heading; when a measurement is due, measure and hand it to `loc`
         (a PlusLocaliser)."""
-        if not self._heading_t or loc.t > self._heading_t[-1]:
-            self._heading_t.append(float(loc.t))
-            self._heading.append(float(loc.pre.theta))
-        if loc.t < self._next or self.times.size < 2:
+        self.headings.add(float(loc.t), float(loc.pre.theta))
+        if loc.t < self._next:
             return
         self._next = loc.t + self.interval_s
         t1 = loc.t - self.lag_s
@@ -53,8 +50,10 @@ class OfflineMotion:
         if tb - ta < 0.5 * MIN_GAP_S or tb > loc.t:
             self.counts["same_frame" if tb - ta < 0.5 * MIN_GAP_S else "future_frame"] += 1
             return
-        h = np.unwrap(np.asarray(self._heading))
-        dtheta = float(np.interp(tb, self._heading_t, h) - np.interp(ta, self._heading_t, h))
+        dtheta = self.headings.change(ta, tb)
+        if dtheta is None:
+            self.counts["no_heading"] += 1
+            return
         m = self.motion.measure(self.drive.frame(i0), self.drive.frame(i1), dtheta)
         if m is None:
             self.counts["weak"] += 1

@@ -12,22 +12,22 @@ frames comes from the Localiser's compass headings, recorded at every loop step 
 
 from __future__ import annotations
 
-import bisect
 import logging
 import math
 import queue
 import threading
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from taco_mav.camera import FrameGuard, FrameRejected
-from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion
+from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 
 if TYPE_CHECKING:
     from taco_mav.link.fixes import FixPipeline
 
 log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class MotionResult:
@@ -56,10 +56,9 @@ class MotionPipeline:
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
                                 check_frozen=False, rectifier=fixes.rectifier)  # frames undistorted as for fixes
         self.counts: Counter[str] = Counter()
-        self._headings: deque[tuple[float, float]] = deque(maxlen=4000)
+        self.headings = HeadingHistory()
         self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)
         self._done: queue.Queue[MotionResult] = queue.Queue()
-        self._lock = threading.Lock()
         self._next = -math.inf
         self._thread: threading.Thread | None = None
 
@@ -77,25 +76,7 @@ class MotionPipeline:
 
     def on_heading(self, t: float, theta: float) -> None:
         """The compass heading (ENU rad) at autopilot time t (s), for the heading change between frames."""
-        with self._lock:
-            if self._headings and t <= self._headings[-1][0]:
-                if t < self._headings[-1][0] - 1.0:
-                    self._headings.clear()  # the autopilot clock went back (reboot)
-                else:
-                    return
-            self._headings.append((t, theta))
-
-    def _heading_at(self, t: float) -> float | None:
-        with self._lock:
-            h = self._headings
-            i = bisect.bisect_left(h, (t, -math.inf))
-            if not h or i == 0 and h[0][0] - t > 0.1 or i == len(h) and t - h[-1][0] > 0.1:
-                return None
-            a, b = h[max(i - 1, 0)], h[min(i, len(h) - 1)]
-        if b[0] == a[0]:
-            return a[1]
-        w = (t - a[0]) / (b[0] - a[0])
-        return a[1] + w * math.remainder(b[1] - a[1], 2 * math.pi)
+        self.headings.add(t, theta)
 
     def tick(self, loc: Any) -> None:
         """On the loop thread: ask for a new measurement when one is due; hand finished ones to the Localiser
@@ -152,10 +133,10 @@ class MotionPipeline:
         a, b = f0(), f1()
         if b.t - a.t < 0.5 * MIN_GAP_S:
             return "same_frame"
-        h0, h1 = self._heading_at(a.t), self._heading_at(b.t)
-        if h0 is None or h1 is None:
+        dtheta = self.headings.change(a.t, b.t)
+        if dtheta is None:
             return "no_heading"
-        m = self.motion.measure(a.image, b.image, math.remainder(h1 - h0, 2 * math.pi))
+        m = self.motion.measure(a.image, b.image, dtheta)
         if m is None:
             return "weak"
         return MotionResult(a.t, b.t, m.d_fwd, m.d_left, m.sigma_m, m.response)
