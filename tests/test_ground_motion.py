@@ -13,7 +13,10 @@ from rasterio.transform import from_origin
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.cvgl.ground_motion import GroundMotion, HeadingHistory
+from taco_mav.datasets.synthetic.layout import Building, Scene
 from taco_mav.datasets.synthetic.render import GroundRenderer
+from taco_mav.datasets.synthetic.render3d import GlRenderer3D, Lighting
+from taco_mav.datasets.synthetic.scene3d import MovingCars, build_scene3d
 
 E0, N0, RES = 600_000.0, 5_400_000.0, 0.1
 
@@ -56,6 +59,65 @@ def test_standing_still_measures_zero_and_blank_ground_is_refused() -> None:
     gb = GroundMotion(camb)
     fb = rb.render((E0 + 100.0, N0 + 100.0, 0.0))
     assert gb.measure(fb, rb.render((E0 + 101.0, N0 + 100.0, 0.0))) is None
+
+
+def _following_frames(gap_m: float, speed_mps: float = 8.0, dt: float = 0.2) -> tuple[np.ndarray, np.ndarray,
+                                                                                        GroundCamera]:
+    """Two frames dt apart, rendered by the 3-D world's OpenGL renderer: the vehicle drives east at speed_mps on
+    asphalt (grey, low-contrast texture) behind a grey car (`car_mesh`: body, dark cabin, contact shadow) that
+    drives at the same speed gap_m ahead."""
+    res = 0.05
+    rng = np.random.default_rng(4)
+    tex = rng.normal(0.0, 1.0, (20 * 8, 100 * 8))
+    grey = 92.0 + 10.0 * cv2.resize(cv2.GaussianBlur(tex, (0, 0), 1.5), (100 * 20, 20 * 20)) / 0.2
+    ground = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    far = Building(corners=np.array([[500.0, -5.0], [510.0, -5.0], [510.0, 5.0], [500.0, 5.0]]), height_m=5.0,
+                   colour=(90, 90, 90), gable=False)
+    layout = Scene(extent=(-50.0, -50.0, 550.0, 50.0), roads=[], junctions=np.zeros((0, 2)),
+                   junction_style=np.zeros(0, int), junction_radius=np.zeros(0), buildings=[far])
+    s3 = build_scene3d(layout, np.random.default_rng(0))
+    s3.moving = MovingCars(np.array([[-50.0, 0.0], [550.0, 0.0]]), np.array([0, 2]), np.array([0.0]),
+                           np.array([50.0 + gap_m]), np.array([speed_mps]), np.array([4]))  # CAR_RGB[4]: grey
+    cam = GroundCamera.from_config(CameraConfig())
+    gl = GlRenderer3D(s3, ground, (-10.0, 10.0), res, shadow_px=1024)
+    try:
+        f0, f1 = (gl.render_camera(cam, (speed_mps * t, 0.0, 0.0), t=t, light=Lighting(sun_az_deg=200.0))[0]
+                  for t in (1.0, 1.0 + dt))
+    finally:
+        gl.close()
+    return f0, f1, cam
+
+
+def test_a_car_followed_at_constant_distance_is_outvoted_by_the_ground_beside_it() -> None:
+    """A car 9 m ahead at our speed looks the same in both frames and fills the middle of the band: one patch
+    across the middle (the measurement before strips) locks onto it and says the vehicle stood still; the strips
+    beside it see the ground move and give the true 1.6 m."""
+    pytest.importorskip("moderngl")
+    f0, f1, cam = _following_frames(9.0)
+    gm = GroundMotion(cam)
+    one = GroundMotion(cam, band_m=gm.band_m, half_width_m=1.5, strips=1, masks=None).measure(f0, f1)
+    assert one is None or abs(one.d_fwd - 1.6) > 0.5, one  # the single patch is fooled (or gives up)
+    m = gm.measure(f0, f1)
+    assert m is not None and abs(m.d_fwd - 1.6) < 0.03 and abs(m.d_left) < 0.05, m
+
+
+def test_strips_that_disagree_without_a_majority_give_no_answer() -> None:
+    """The right half of the second frame is the first frame's (that half of the view stands still): two strips
+    see 1.2 m, two see 0 and neither group outvotes the other, so there is no answer. With the right quarter
+    frozen, three strips outvote one."""
+    r, cam = _renderer(seed=3)
+    f0, f1 = r.render((E0 + 100.0, N0 + 100.0, 0.0)), r.render((E0 + 101.2, N0 + 100.0, 0.0))
+    gm = GroundMotion(cam, strips=4, masks=None)
+    m = gm.measure(f0, f1)
+    assert m is not None and abs(m.d_fwd - 1.2) < 0.03
+    cx = int(round(cam.K[0, 2]))
+    half = f1.copy()
+    half[:, cx:] = f0[:, cx:]
+    assert gm.measure(f0, half) is None
+    quarter = f1.copy()
+    quarter[:, cx + 110:] = f0[:, cx + 110:]  # the ground from 2.7 m right (11 m ahead): most of the right strip
+    m = gm.measure(f0, quarter)
+    assert m is not None and abs(m.d_fwd - 1.2) < 0.03
 
 
 def test_heading_history_interpolates_across_the_wrap_and_restarts_after_the_clock_goes_back() -> None:
