@@ -95,7 +95,7 @@ def test_a_car_followed_at_constant_distance_is_outvoted_by_the_ground_beside_it
     pytest.importorskip("moderngl")
     f0, f1, cam = _following_frames(9.0)
     gm = GroundMotion(cam)
-    one = GroundMotion(cam, band_m=gm.band_m, half_width_m=1.5, strips=1, masks=None).measure(f0, f1)
+    one = GroundMotion(cam, band_m=gm.band_m, half_width_m=1.5, strips=1).measure(f0, f1)
     assert one is None or abs(one.d_fwd - 1.6) > 0.5, one  # the single patch is fooled (or gives up)
     m = gm.measure(f0, f1)
     assert m is not None and abs(m.d_fwd - 1.6) < 0.03 and abs(m.d_left) < 0.05, m
@@ -107,7 +107,7 @@ def test_strips_that_disagree_without_a_majority_give_no_answer() -> None:
     frozen, three strips outvote one."""
     r, cam = _renderer(seed=3)
     f0, f1 = r.render((E0 + 100.0, N0 + 100.0, 0.0)), r.render((E0 + 101.2, N0 + 100.0, 0.0))
-    gm = GroundMotion(cam, strips=4, masks=None)
+    gm = GroundMotion(cam, strips=4)
     m = gm.measure(f0, f1)
     assert m is not None and abs(m.d_fwd - 1.2) < 0.03
     cx = int(round(cam.K[0, 2]))
@@ -119,6 +119,18 @@ def test_strips_that_disagree_without_a_majority_give_no_answer() -> None:
     m = gm.measure(f0, quarter)
     assert m is not None and abs(m.d_fwd - 1.2) < 0.03
 
+
+def test_the_band_starts_above_the_rows_the_vehicle_hides() -> None:
+    """KITTI's camera with a bonnet in the bottom 60 rows (it moves with the vehicle): the band starts farther
+    out, where the ground is seen above them; a bonnet hiding the whole view is refused at start-up with a line
+    naming the cause."""
+    cam = GroundCamera.from_config(CameraConfig())
+    plain, bonnet = GroundMotion(cam), GroundMotion(cam, ego_rows=60)
+    G = cam.ground_to_image
+    p = G @ np.array([bonnet.band_m[0] - bonnet.max_shift_m, 0.0, 1.0])
+    assert bonnet.band_m[0] > plain.band_m[0] + 1.0 and p[1] / p[2] <= cam.height - 1 - 60
+    with pytest.raises(ValueError, match="ground motion: the camera sees no ground"):
+        GroundMotion(cam, ego_rows=cam.height - 5)
 
 def test_heading_history_interpolates_across_the_wrap_and_restarts_after_the_clock_goes_back() -> None:
     """The heading change between two frame times: interpolated through +-pi (not the long way round), None more

@@ -110,7 +110,7 @@ class ClassicalMatcher:
         if self.descriptor not in DESCRIPTORS:
             raise MatcherError(f"classical matcher: descriptor {self.descriptor!r} is not one of "
                                f"{', '.join(DESCRIPTORS)} (profile key classical.descriptor)")
-        self.masks = MaskOptions.from_config(cfg) if masks is None else masks
+        self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows) if masks is None else masks
         mid, scale = W_CALIBRATION[self.descriptor]
         self.psr_at_half_weight = mid if cfg.psr_at_half_weight is None else cfg.psr_at_half_weight
         self.psr_logistic_scale = scale if cfg.psr_logistic_scale is None else cfg.psr_logistic_scale

@@ -32,7 +32,6 @@ import cv2
 import numpy as np
 
 from taco_mav.camera_geometry import GroundCamera
-from taco_mav.config import ClassicalMatcherConfig
 
 __all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
 
@@ -56,11 +55,6 @@ class MaskOptions:
     foot_tol_frac: float = 0.04
     dilate_px: int = 3
     min_view_fraction: float = 0.25
-
-    @classmethod
-    def from_config(cls, cfg: ClassicalMatcherConfig) -> MaskOptions:
-        """The profile's choice (`classical.mask_vertical`, `classical.ego_mask_rows`), the rest defaulted."""
-        return cls(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows)
 
 
 def horizon_row(camera: GroundCamera) -> float:

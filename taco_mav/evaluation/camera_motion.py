@@ -18,22 +18,21 @@ import numpy as np
 
 from taco_mav.camera_geometry import GroundCamera
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
-from taco_mav.cvgl.masks import MaskOptions
 from taco_mav.datasets.base import Drive
 
 __all__ = ["OfflineMotion"]
 
 
 class OfflineMotion:
-    """drive: its frame_times (s, at least two) and frame(i) images; camera: the drive's ground camera; masks: what
-    to mask in its images (the profile's, as the daemon's). interval_s, gap_s and lag_s as
-    `link.motion.MotionPipeline`'s. `counts` says what became of each measurement."""
+    """drive: its frame_times (s, at least two) and frame(i) images; camera: the drive's ground camera; ego_rows:
+    the image rows showing the vehicle (the profile's `classical.ego_mask_rows`, as the daemon's). interval_s,
+    gap_s and lag_s as `link.motion.MotionPipeline`'s. `counts` says what became of each measurement."""
 
-    def __init__(self, drive: Drive, camera: GroundCamera, masks: MaskOptions, interval_s: float = 0.5,
+    def __init__(self, drive: Drive, camera: GroundCamera, ego_rows: int = 0, interval_s: float = 0.5,
                  gap_s: float = 0.3, lag_s: float = 0.1) -> None:
         self.drive = drive
         self.times = np.asarray(drive.frame_times, dtype=float)
-        self.motion = GroundMotion(camera, masks=masks)
+        self.motion = GroundMotion(camera, ego_rows=ego_rows)
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         self.counts: Counter[str] = Counter()
         self._next = -math.inf

@@ -22,7 +22,6 @@ from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame
-from taco_mav.cvgl.masks import MaskOptions
 from taco_mav.cvgl.registry import make_matcher
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.cvgl.service import FixService
@@ -120,7 +119,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
     # taco+'s camera speed, as the daemon feeds it (link/motion.py), on a drive with camera frames
-    motion = (OfflineMotion(drive, camera, MaskOptions.from_config(profile.classical))
+    motion = (OfflineMotion(drive, camera, profile.classical.ego_mask_rows)
               if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser) and profile.plus.camera_speed
               and len(drive.frame_times) >= 2 else None)
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):

@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any
 
 from taco_mav.camera import FrameGuard, FrameRejected
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
-from taco_mav.cvgl.masks import MaskOptions
 
 if TYPE_CHECKING:
     from taco_mav.link.fixes import FixPipeline
@@ -53,7 +52,7 @@ class MotionPipeline:
         self.fixes = fixes
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         cam = fixes.ground_camera
-        self.motion = GroundMotion(cam, masks=MaskOptions.from_config(fixes.profile.classical))
+        self.motion = GroundMotion(cam, ego_rows=fixes.profile.classical.ego_mask_rows)
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
                                 check_frozen=False, rectifier=fixes.rectifier)  # frames undistorted as for fixes
         self.counts: Counter[str] = Counter()
