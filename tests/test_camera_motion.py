@@ -3,6 +3,8 @@ real synthetic world (rendered frames, GeoTIFF mosaic), the real GroundMotion co
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -49,3 +51,15 @@ def test_paper_mode_and_image_less_matchers_take_no_camera_speed(drive) -> None:
     assert paper.extra["camera_motion"] == {}
     emu = replace_in(replace_in(load_profile("synthetic"), "estimator", Estimator.TACO_PLUS), "matcher", "emulator")
     assert run_drive(drive, emu).extra["camera_motion"] == {}
+
+
+def test_a_camera_that_sees_too_little_ground_runs_without_its_speed(drive, caplog) -> None:  # noqa: ANN001
+    """A bonnet over all but the top 5 rows (`classical.ego_mask_rows`): the ground-motion band cannot be placed,
+    so the run goes on without the camera's speed and says why in one warning (the daemon does the same)."""
+    prof = replace_in(replace_in(load_profile("synthetic"), "estimator", Estimator.TACO_PLUS),
+                      "classical.ego_mask_rows", 370)
+    with caplog.at_level(logging.WARNING, logger="taco_mav.evaluation.runner"):
+        run = run_drive(drive, prof)
+    assert run.extra["camera_motion"] == {}
+    assert "camera speed off (plus.camera_speed): ground motion: the camera sees no ground" in caplog.text
+    assert len(run.online_xy) == len(run.truth_xy) and np.isfinite(run.online_xy).all()

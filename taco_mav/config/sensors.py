@@ -76,7 +76,8 @@ class ClassicalMatcherConfig:
     descriptor: str = "orientation"
     # Masks for what inverse perspective mapping cannot represent (taco_mav/cvgl/masks.py): vertical structure
     # (poles, cars, facades: long image-vertical edges, masked from their foot up) and the bottom image rows the
-    # ego vehicle hides (its bonnet; 0 for KITTI's camera).
+    # ego vehicle hides (its bonnet; 0 for KITTI's camera). taco+'s camera speed (cvgl/ground_motion.py) places its
+    # ground band above those rows as well.
     mask_vertical: bool = True
     ego_mask_rows: int = field(default=0, metadata=bounded(0))
     # w = 1 / (1 + exp(-(PSR - psr_at_half_weight) / psr_logistic_scale)); None: the descriptor's own calibration

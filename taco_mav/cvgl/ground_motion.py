@@ -2,16 +2,16 @@
 
 Both frames are projected to the same heading-up bird's-eye view (`BevProjector`, the IPM the classical matcher
 uses); the second is first rotated about the vehicle by the compass's heading change, so what is left between
-the two views is the vehicle's translation, which phase correlation (cv2.phaseCorrelate) measures to a fraction
-of a BEV pixel. The static edge of the visible region would pull the correlation towards zero shift, so both
-views are high-passed and multiplied by an apodisation window that fades to zero inside the region's edge.
+the two views is the vehicle's translation, which normalised cross-correlation (cv2.matchTemplate) of a patch of
+frame 0 within frame 1 measures to a fraction of a BEV pixel. Both views are high-passed first (lighting drops
+out).
 
 The patch is split into side-by-side strips, each correlated on its own, and the answer is that of the largest
-group of strips that agree (at least two, and more than in any other group). Something that moves with the vehicle (a car followed at a constant
-distance, and its shadow) fills one strip and makes it measure zero motion; the strips on either side still see
-the ground and outvote it. Strips that disagree with no majority give no answer. (Masking vertical structure as
-the classical matcher does, `cvgl.masks`, cost 2 x 19 ms per measurement, 8x the rest, and changed no
-measurement on nine 3-D worlds: the strips do that job.)
+group of strips that agree (at least two, and more than in any other group). Something that moves with the
+vehicle (a car followed at a constant distance, and its shadow) fills one strip and makes it measure zero
+motion; the strips on either side still see the ground and outvote it. Strips that disagree with no majority
+give no answer. (Masking vertical structure as the classical matcher does, `cvgl.masks`, cost 2 x 19 ms per
+measurement, 8x the rest, and changed no measurement on nine 3-D worlds: the strips do that job.)
 
 Frames and units: BEV pixel (i, j) shows ground at forward = (v0 - j) m, left = (u0 - i) m (module ipm).
 When the vehicle moves forward by d metres, the ground in the second view moves down the image by d / m
@@ -110,7 +110,8 @@ class GroundMotion:
             raise ValueError(f"ground motion: strips must be >= 1 and agree_m > 0, got {strips}, {agree_m}")
         self.m_per_px, self.max_shift_m = m_per_px, max_shift_m
         if band_m is None:
-            near = nearest_ground_m(camera, half_width_m + max_shift_m / 2.0, bottom_row=camera.height - 1 - ego_rows)
+            near = nearest_ground_m(camera, half_width_m + max_shift_m / 2.0,
+                                    bottom_row=camera.height - 1 - ego_rows)
             band_m = (near + max_shift_m + 0.2, near + max_shift_m + 0.2 + band_depth_m)
         self.band_m = band_m
         far = band_m[1] + 1.0
@@ -151,8 +152,8 @@ class GroundMotion:
 
     def measure(self, image0: np.ndarray, image1: np.ndarray, dtheta: float = 0.0) -> Motion | None:
         """Translation from frame 0 to frame 1 (camera images of this camera's size); dtheta: heading change
-        between them, ENU rad (the compass's). None when no two strips agree (the class docstring) or, with one
-        strip textured, its peak is weak, at the edge of the search or not unique."""
+        between them, ENU rad (the compass's). None when no group of strips outvotes the others (module
+        docstring) or, with one strip textured, its peak is weak or at the edge of the search."""
         b0 = self._prepare(image0)
         b1 = self._prepare(image1, dtheta)
         textured = [m for m in (self._strip(b0, b1, c0, c1) for c0, c1 in self.strip_cols) if m is not None]
@@ -173,7 +174,8 @@ class GroundMotion:
         """The most strips whose translations agree with one of them to within agree_m on both axes."""
         best: list[Motion] = []
         for m in found:
-            group = [o for o in found if abs(o.d_fwd - m.d_fwd) <= self.agree_m and abs(o.d_left - m.d_left) <= self.agree_m]
+            group = [o for o in found
+                     if abs(o.d_fwd - m.d_fwd) <= self.agree_m and abs(o.d_left - m.d_left) <= self.agree_m]
             if len(group) > len(best):
                 best = group
         return best

@@ -119,9 +119,13 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
     # taco+'s camera speed, as the daemon feeds it (link/motion.py), on a drive with camera frames
-    motion = (OfflineMotion(drive, camera, profile.classical.ego_mask_rows)
-              if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser) and profile.plus.camera_speed
-              and len(drive.frame_times) >= 2 else None)
+    motion = None
+    if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser) and profile.plus.camera_speed \
+            and len(drive.frame_times) >= 2:
+        try:
+            motion = OfflineMotion(drive, camera, profile.classical.ego_mask_rows)
+        except ValueError as e:  # the camera sees too little ground ahead: as the daemon, speed is the IMU's
+            log.warning("drive %s: camera speed off (plus.camera_speed): %s", drive.name, e)
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):
         loc.add_imu(sample)
         if len(loc.track) > len(reported):  # a frame closed: what the daemon would report now

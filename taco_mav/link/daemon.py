@@ -135,8 +135,11 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
         if self.fixes.camera is not None and p.plus.camera_speed and p.estimator is Estimator.TACO_PLUS:
-            self.motion = MotionPipeline(self.fixes)
-            self.motion.start()
+            try:
+                self.motion = MotionPipeline(self.fixes)
+                self.motion.start()
+            except ValueError as e:  # the camera sees too little ground ahead: fixes still work, speed is the IMU's
+                log.warning("camera speed off (plus.camera_speed): %s", e)
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
         rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
