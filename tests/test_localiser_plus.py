@@ -224,6 +224,38 @@ def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_so
     assert 9.0 <= at(after[0]) - at(missed[0]) <= 12.0  # retried after ~10 m
 
 
+
+def test_time_trigger_asks_again_sooner_after_an_answer_without_a_fix():
+    """plus.trigger_retry_s: with the time trigger alone (every 5 s), an answer without a fix is followed by a
+    query 2.5 s later, not 5 s; once a fix is accepted the interval is 5 s again; with it 0, always 5 s."""
+    d = _drive()
+    base = dataclasses.replace(PLUS.plus, trigger_sigma_m=1e9, trigger_time_s=5.0)
+    missed: list[float] = []
+
+    def weak_twice(q):  # the first two queries after 60 s find nothing usable
+        if q.capture_t > 60.0 and len(missed) < 2:
+            missed.append(q.capture_t)
+            return [MatchResult(np.eye(2), np.zeros(2), 0.05)] * len(q.crop_centres)
+        return OracleMatcher(d, seed=2).answer(q)
+
+    def run(retry: float) -> tuple[list, int]:
+        missed.clear()
+        loc, _, _ = run_plus(d, params=dataclasses.replace(PLUS, plus=dataclasses.replace(base, trigger_retry_s=retry)),
+                             planted=weak_twice)
+        t = [o.capture_t for o in loc.outcomes]
+        return loc.outcomes, t.index(missed[0])
+
+    out, k = run(2.5)
+    t = [o.capture_t for o in out]
+    assert out[k].reason == "weak" and out[k + 1].reason == "weak" and out[k + 2].accepted
+    assert t[k + 1] - t[k] == pytest.approx(2.5, abs=0.15)  # after a miss
+    assert t[k + 2] - t[k + 1] == pytest.approx(2.5, abs=0.15)  # still no fix
+    assert t[k + 3] - t[k + 2] == pytest.approx(5.0, abs=0.15)  # a fix: 5 s again
+    assert t[k] - t[k - 1] == pytest.approx(5.0, abs=0.15)
+    out, k = run(0.0)
+    assert out[k + 1].capture_t - out[k].capture_t == pytest.approx(5.0, abs=0.15)
+
+
 def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
     """Issue 18: with defer_w, a consensus answer weaker than it is not used while the filter is healthy (reason
     'deferred': neither a fix nor a failure), the query is asked again defer_retry_m on, and after defer_max

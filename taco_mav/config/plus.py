@@ -69,6 +69,12 @@ class PlusConfig:
     # Covariance trigger: a fix when the filter's 1-sigma reaches this (or after trigger_time_s moving).
     trigger_sigma_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))
     trigger_time_s: float = field(default=10.0, metadata=bounded(0.0, open_lo=True))
+    # After a weak answer (no crop the matcher could place), the time trigger asks again after this many seconds
+    # instead of trigger_time_s, until a fix is accepted or an answer is rejected otherwise (0: off). A featureless
+    # stretch (a straight road between lawns) is crossed with more chances of a crossing or a marking the matcher
+    # can place; misses are not fixes, so they do not count in fixes/km. Rejected confident answers are not
+    # retried sooner: asked again from nearly the same place, a chance peak repeats and looks like evidence.
+    trigger_retry_s: float = field(default=0.0, metadata=bounded(0.0))
     # Distance trigger (issue 18): also a fix once this many metres were driven since the last accepted one, so the
     # fixes are spread along the road rather than bunched where the covariance grows (0: off); a failed query is
     # retried after trigger_retry_m (a miss is not counted in fixes/km, so it is not budget).

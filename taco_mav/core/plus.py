@@ -68,6 +68,7 @@ class PlusParams:
     # trigger and search
     trigger_sigma_m: float = 3.0
     trigger_time_s: float = 10.0
+    trigger_retry_s: float = 0.0  # after a weak answer, the time trigger's interval until a fix (0: off)
     trigger_distance_m: float = 0.0  # also ask once this many metres passed since the last accepted fix (0: off)
     trigger_retry_m: float = 10.0  # ... and this many since the last query (a failed one is retried sooner)
     map_trigger_ratio: float = 0.5  # ask while sigma_h < this x the map offset's largest 1-sigma (8 states) ...
