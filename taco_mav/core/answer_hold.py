@@ -27,7 +27,7 @@ class AnswerHoldMixin:
     _held: list
     _odo: float
     _misses_in_row: int
-    _weak_since_fix: bool
+    _last_answer_weak: bool
     _gate_misses: int
     _gate_innovs: list
     _report_floor_m: float
@@ -85,7 +85,7 @@ class AnswerHoldMixin:
         innov: the rejected answer's z - x (ENU m), for that comparison; None for one too weak to count
         (plus.guard_w_min), which breaks the run."""
         was_lost = self.lock.state is LockState.LOST
-        self._weak_since_fix = reason == "weak"  # nothing the matcher could place: worth asking again soon
+        self._last_answer_weak = reason == "weak"  # nothing the matcher could place: worth asking again soon
         if reason != "no_results":
             self._misses_in_row += 1
         counts = reason == "innovation_gate" and innov is not None

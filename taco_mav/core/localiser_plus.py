@@ -71,7 +71,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         self._gate_misses = 0  # consecutive innovation-gate rejections (of at least plus.guard_w_min)
         self._gate_innovs: list[tuple[np.ndarray, float]] = []  # ... their z - x (ENU m) and odometer (m)
         self._misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
-        self._weak_since_fix = False  # the last answer had nothing usable (plus.trigger_retry_s asks sooner)
+        self._last_answer_weak = False  # the last answer had nothing usable (plus.trigger_retry_s asks sooner)
         self._report_floor_m = 0.0  # 1-sigma floor on the reported (not the filter's) position accuracy, m
         self._zupt_since_reset = False  # a zero-velocity update since the IMU-only track was reset
         self._speed_seen_t, self._speed_seen_sigma = t0, q.initial_speed_sigma_mps  # last speed observation
@@ -211,7 +211,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         # issue 19), unless the autopilot confirms it does not drive
         d = self._drive
         stopped = d is not None and not d[1] and self.t - d[0] <= q.drive_command_timeout_s
-        every = q.trigger_retry_s if q.trigger_retry_s > 0.0 and self._weak_since_fix else q.trigger_time_s
+        every = q.trigger_retry_s if q.trigger_retry_s > 0.0 and self._last_answer_weak else q.trigger_time_s
         if self.t - self._last_fix_t >= every and not (stopped and (self._zupt or self.still.stationary)):
             return self._planned("time", arm)
         return None
@@ -324,7 +324,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         if self._history:
             self._feedback(self._history[-1])
         self._gate_misses = self._misses_in_row = self._deferred = 0
-        self._weak_since_fix = False
+        self._last_answer_weak = False
         self._gate_innovs = []
         self._report_floor_m = 0.0
         self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))

@@ -167,8 +167,12 @@ class GroundMotion:
         w = np.array([m.response for m in best])
         peak = float(w.mean())
         return Motion(float(np.average([m.d_fwd for m in best], weights=w)),
-                      float(np.average([m.d_left for m in best], weights=w)), peak,
-                      float(self.m_per_px * (0.2 + 0.5 * (1.0 - peak))))
+                      float(np.average([m.d_left for m in best], weights=w)), peak, self._sigma(peak))
+
+    def _sigma(self, peak: float) -> float:
+        """1-sigma of a translation, metres, from its correlation peak: sub-pixel at a clean peak, a few pixels at
+        a poor one."""
+        return float(self.m_per_px * (0.2 + 0.5 * (1.0 - peak)))
 
     def _largest_group(self, found: list[Motion]) -> list[Motion]:
         """The most strips whose translations agree with one of them to within agree_m on both axes."""
@@ -196,8 +200,7 @@ class GroundMotion:
             return False  # at the edge of the search: the motion may be larger than looked for
         dy = y + _vertex(score[y - 1, x], score[y, x], score[y + 1, x]) - self.up
         dx = x + _vertex(score[y, x - 1], score[y, x], score[y, x + 1]) - self.side
-        sigma = self.m_per_px * (0.2 + 0.5 * (1.0 - peak))  # sub-pixel at a clean peak, a few pixels at a poor one
-        return Motion(float(dy * self.m_per_px), float(dx * self.m_per_px), float(peak), float(sigma))
+        return Motion(float(dy * self.m_per_px), float(dx * self.m_per_px), float(peak), self._sigma(peak))
 
 
 def nearest_ground_m(camera: GroundCamera, half_width_m: float, step_m: float = 0.1, limit_m: float = 60.0,
