@@ -18,6 +18,7 @@ import statistics
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -113,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     cells = [Cell(q.strip().zfill(2), s, a, float(lat)) for a in areas for lat in args.latencies.split(",")
              for s in seeds(args.seeds) for q in args.sequences.split(",") if q.strip()]
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        rows = list(pool.map(run_cell, cells, *zip(*[(args.kitti_root, args.estimator, args.profile, sets)] * len(cells))))
+        rows = list(pool.map(partial(run_cell, kitti_root=args.kitti_root, estimator=args.estimator,
+                                     profile=args.profile, sets=sets), cells))
     print(table(rows))
     if args.out:
         args.out.write_text(json.dumps({"overrides": sets, "estimator": args.estimator, "profile": args.profile,
