@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from taco_mav.config import parse_overrides
 from taco_mav.evaluation.evaluate import EvalRequest, evaluate
 
 spec = importlib.util.spec_from_file_location("seed_sweep", Path(__file__).parents[1] / "tools" / "seed_sweep.py")
@@ -20,10 +21,10 @@ spec.loader.exec_module(seed_sweep)
 def test_seed_ranges_and_overrides_parse():
     assert seed_sweep.seeds("0-3") == [0, 1, 2, 3]
     assert seed_sweep.seeds("2,5-6") == [2, 5, 6]
-    assert seed_sweep.overrides(["plus.q_speed_mps=0.05", "plus.guard=false"]) == {
+    assert parse_overrides(["plus.q_speed_mps=0.05", "plus.guard=false"]) == {
         "plus.q_speed_mps": 0.05, "plus.guard": False}
     with pytest.raises(SystemExit, match="expected key=value"):
-        seed_sweep.overrides(["plus.q_speed_mps"])
+        seed_sweep.main(["--kitti-root", ".", "--set", "plus.q_speed_mps"])
     with pytest.raises(SystemExit, match="--areas"):
         seed_sweep.main(["--kitti-root", ".", "--areas", "elsewhere"])
 

@@ -32,9 +32,8 @@ from typing import Any
 
 import numpy as np
 import rasterio
-import yaml
 
-from taco_mav.config import Estimator, Profile, load_profile, replace_in
+from taco_mav.config import Estimator, Profile, load_profile, parse_overrides, replace_in
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
@@ -171,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="eval: a profile override, e.g. ukf.fix_fwd_num=0.5 (repeatable; values parsed as YAML)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    overrides = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.set)}
+    overrides = parse_overrides(args.set)
     drive = load_world(args.world)
     prof = load_profile(args.profile)
     out: dict[str, Any] = {}

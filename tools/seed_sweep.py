@@ -6,7 +6,8 @@ bar such as "no sequence above 1.0 m"; this prints every seed's ATE and the wors
         --seeds 0-4 --areas same,cross --latencies 0,1 [--set plus.q_speed_mps=0.05 ...] [--out sweep.json]
 
 Each cell runs the same code as `taco-mav eval --estimator taco+ --seed S --matcher-latency L [--cross-area]`
-(resolve_profile, run_drive, metrics) and gives the same numbers. Profile keys for --set are dotted as in
+(resolve_profile, run_drive, metrics) and gives the same numbers, except that area 'same' runs same-area even a
+sequence the profile lists as cross-area (emulator.cross_area_sequences: 00, 06), which eval runs cross-area. Profile keys for --set are dotted as in
 vehicle_profiles/*.yaml; values are parsed as YAML (0.05, true, [1, 2]).
 """
 
@@ -22,12 +23,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from taco_mav.config import replace_in
+from taco_mav.config import parse_overrides, replace_in
 from taco_mav.evaluation.evaluate import EvalRequest, load_drives, resolve_profile
 from taco_mav.evaluation.runner import run_drive
 from taco_mav.evaluation.summary import metrics
+from taco_mav.errors import UsageError
 
 
 @dataclass(frozen=True)
@@ -46,17 +46,6 @@ def seeds(text: str) -> list[int]:
     for part in text.split(","):
         lo, _, hi = part.strip().partition("-")
         out += list(range(int(lo), int(hi) + 1)) if hi else [int(lo)]
-    return out
-
-
-def overrides(items: list[str]) -> dict[str, Any]:
-    """--set key=value items -> {dotted key: YAML value}."""
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise SystemExit(f"--set {item!r}: expected key=value, e.g. plus.q_speed_mps=0.05")
-        out[key.strip()] = yaml.safe_load(value)
     return out
 
 
@@ -110,7 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     areas = [a.strip() for a in args.areas.split(",") if a.strip()]
     if not areas or any(a not in ("same", "cross") for a in areas):
         raise SystemExit(f"--areas {args.areas!r}: expected same, cross or same,cross")
-    sets = overrides(args.set)
+    try:
+        sets = parse_overrides(args.set)
+    except UsageError as e:
+        raise SystemExit(str(e)) from None
     cells = [Cell(q.strip().zfill(2), s, a, float(lat)) for a in areas for lat in args.latencies.split(",")
              for s in seeds(args.seeds) for q in args.sequences.split(",") if q.strip()]
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 from taco_mav.config.fields import Estimator, bounded
 from taco_mav.config.link import LinkConfig, OutputConfig
-from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, profile_from_dict,
-                                     resolve_profile_path, shipped_profiles)
+from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, parse_overrides,
+                                     profile_from_dict, resolve_profile_path, shipped_profiles)
 from taco_mav.config.paper import (ErrorModelConfig, GateConfig, ImuConfig, LatencyConfig, SmootherConfig,
                                    TriggerConfig, UkfConfig)
 from taco_mav.config.plus import GnssConfig, PlusConfig
@@ -36,4 +36,4 @@ __all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "Clas
            "EmulatorConfig", "ErrorModelConfig", "Estimator", "Fg2Config", "GateConfig", "GnssConfig", "ImuConfig",
            "LatencyConfig", "LinkConfig", "MapConfig", "OutputConfig", "PlusConfig", "Profile", "SmootherConfig",
            "TriggerConfig", "UkfConfig", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
-           "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path", "shipped_profiles"]
+           "parse_overrides", "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path", "shipped_profiles"]

@@ -20,7 +20,7 @@ from typing import Any
 import yaml
 
 from taco_mav.config.profile import MATCHERS, Profile
-from taco_mav.errors import ConfigError
+from taco_mav.errors import ConfigError, UsageError
 
 log = logging.getLogger(__name__)
 
@@ -170,3 +170,16 @@ def load_profile(name_or_path: str | Path) -> Profile:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     return profile_from_dict(data, str(path), base_dir=path.resolve().parent)
+
+
+def parse_overrides(items: typing.Iterable[str], option: str = "--set") -> dict[str, Any]:
+    """Profile overrides given as KEY=VALUE text (a tool's repeatable `option`): {dotted key: value}, each value
+    parsed as YAML as a profile's are (0.05, true, [1, 2]); apply them with `replace_in`. UsageError names an item
+    without '=' or without a key."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"{option} {item!r}: expected key=value, e.g. plus.q_speed_mps=0.05")
+        out[key.strip()] = yaml.safe_load(value)
+    return out
