@@ -3,8 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from taco_mav.evaluation.metrics import (COVERAGE_GAUSSIAN_RANGE, align_first_pose, coverage, cumulative_distance,
-                                         h_acc_from_var, path_length_m, position_errors, rmse, steady_state_rmse)
+from taco_mav.evaluation.metrics import (COVERAGE_GAUSSIAN_RANGE, align_first_pose, along_cross, coverage,
+                                         cumulative_distance, fix_errors, h_acc_from_var, path_length_m,
+                                         position_errors, rmse, steady_state_rmse, track_errors)
 
 
 def test_first_pose_alignment_removes_a_rigid_offset():
@@ -23,6 +24,31 @@ def test_rmse_and_lengths():
     xy = np.array([[0, 0], [3, 4], [3, 10]], dtype=float)
     assert path_length_m(xy) == pytest.approx(11.0)
     assert cumulative_distance(xy) == pytest.approx([0.0, 5.0, 11.0])
+
+
+def test_errors_split_along_and_across_the_true_heading():
+    # heading north (ENU pi/2): an error to the east is to the right (negative cross), to the north is ahead
+    assert along_cross(np.array([[1.0, 0.0], [0.0, 2.0]]), np.array([math.pi / 2] * 2)) == pytest.approx(
+        np.array([[0.0, -1.0], [2.0, 0.0]]), abs=1e-12)
+    # a track that runs 1.5 m ahead and 0.5 m to the left of a curving truth, first poses aligned
+    th = np.linspace(0.0, 1.0, 20)
+    gt = np.column_stack([np.cumsum(np.cos(th)), np.cumsum(np.sin(th))])
+    est = gt + 1.5 * np.column_stack([np.cos(th), np.sin(th)]) + 0.5 * np.column_stack([-np.sin(th), np.cos(th)])
+    est[0] = gt[0]
+    split = track_errors(est, gt, th, 0.0, 0.0)
+    assert split[1:] == pytest.approx(np.tile([1.5, 0.5], (19, 1)), abs=1e-9)
+    assert np.hypot(split[:, 0], split[:, 1]) == pytest.approx(position_errors(est, gt, 0.0, 0.0), abs=1e-9)
+
+
+def test_fix_errors_are_against_the_truth_at_the_capture_time():
+    t = np.array([0.0, 1.0, 2.0])
+    gt = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
+    heading = np.array([0.0, 0.0, math.pi / 2])
+    # captured at 0.5 s (truth (5, 0), heading east) 0.3 m behind and 0.2 m to the right; at 2 s (heading
+    # north) exactly on the truth
+    e = fix_errors(np.array([0.5, 2.0]), np.array([[4.7, -0.2], [10.0, 10.0]]), t, gt, heading)
+    assert e == pytest.approx(np.array([[-0.3, -0.2], [0.0, 0.0]]), abs=1e-12)
+    assert fix_errors(np.array([]), np.zeros((0, 2)), t, gt, heading).shape == (0, 2)
 
 
 def test_steady_state_starts_at_the_third_accepted_fix():

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -61,6 +62,14 @@ def run_cell(cell: Cell, kitti_root: Path, estimator: str, profile: str, sets: d
             **metrics(run)}
 
 
+def _pair(group: list[dict[str, Any]], along: str, cross: str) -> str:
+    """'a/c': the RMS over the runs of two per-run RMS figures, metres ('-' where no run has them)."""
+    def pooled(key: str) -> str:
+        vals = [r[key] for r in group if r.get(key) is not None]
+        return f"{math.sqrt(statistics.mean(v * v for v in vals)):.2f}" if vals else "-"
+    return f"{pooled(along)}/{pooled(cross)} m"
+
+
 def table(rows: list[dict[str, Any]]) -> str:
     """One line per (area, latency): every seed's ATE per sequence, the worst fixes/km, and the pooled figures."""
     lines = []
@@ -77,6 +86,8 @@ def table(rows: list[dict[str, Any]]) -> str:
             ates = [r["ate_m"] for r in group]
             cov2 = [r["coverage_2sigma"] for r in group if r.get("coverage_2sigma") is not None]
             cov = f" 2-sigma coverage {min(cov2):.2f}-{max(cov2):.2f}" if cov2 else ""
+            cov += "; along/cross track (RMS over the runs): error " + _pair(group, "ate_along_m", "ate_cross_m") \
+                + ", fixes " + _pair(group, "fix_error_along_rms_m", "fix_error_cross_rms_m")
             lines.append(f"{area:5s} L{lat:g}: " + "  ".join(parts)
                          + f" | median {statistics.median(ates):.3f} mean {statistics.mean(ates):.3f} "
                            f"max {max(ates):.2f} above 1 m: {sum(a > 1.0 for a in ates)}/{len(ates)}{cov}")

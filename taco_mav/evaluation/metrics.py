@@ -29,6 +29,35 @@ def position_errors(est_xy: np.ndarray, gt_xy: np.ndarray, est_theta0: float | N
     return np.linalg.norm(est - np.asarray(gt_xy, dtype=float), axis=1)
 
 
+def along_cross(err_xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """ENU error vectors (N, 2), metres, split along and across the true heading (N,) ENU rad: (N, 2) columns
+    along-track (positive ahead) and cross-track (positive to the left)."""
+    e = np.asarray(err_xy, dtype=float).reshape(-1, 2)
+    c, s = np.cos(heading), np.sin(heading)
+    return np.column_stack([c * e[:, 0] + s * e[:, 1], -s * e[:, 0] + c * e[:, 1]])
+
+
+def track_errors(est_xy: np.ndarray, gt_xy: np.ndarray, gt_heading: np.ndarray, est_theta0: float,
+                 gt_theta0: float) -> np.ndarray:
+    """Per-pose error (N, 2) along and across the true heading, metres, after the first-pose alignment that
+    position_errors (and so the ATE) uses."""
+    est = align_first_pose(np.asarray(est_xy, dtype=float), est_theta0, gt_xy, gt_theta0)
+    return along_cross(est - np.asarray(gt_xy, dtype=float), np.asarray(gt_heading, dtype=float))
+
+
+def fix_errors(capture_t: np.ndarray, fix_xy: np.ndarray, t: np.ndarray, gt_xy: np.ndarray,
+               gt_heading: np.ndarray) -> np.ndarray:
+    """Error of fixes (M, 2) along and across the true heading, metres: each fix xy (ENU metres, the reference
+    point) against the ground truth (N poses at times t, s) interpolated at its capture time (M,), s."""
+    tc = np.asarray(capture_t, dtype=float)
+    if tc.size == 0:
+        return np.zeros((0, 2))
+    gt = np.asarray(gt_xy, dtype=float)
+    truth = np.column_stack([np.interp(tc, t, gt[:, 0]), np.interp(tc, t, gt[:, 1])])
+    heading = np.interp(tc, t, np.unwrap(np.asarray(gt_heading, dtype=float)))
+    return along_cross(np.asarray(fix_xy, dtype=float).reshape(-1, 2) - truth, heading)
+
+
 def rmse(errors: np.ndarray) -> float:
     """Root mean square of errors (0 for an empty array)."""
     e = np.asarray(errors, dtype=float)

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.evaluation.metrics import (coverage, h_acc_from_var, path_length_m, position_errors, rmse,
-                                         steady_state_rmse)
+from taco_mav.evaluation.metrics import (coverage, fix_errors, h_acc_from_var, path_length_m, position_errors,
+                                         rmse, steady_state_rmse, track_errors)
 from taco_mav.evaluation.runner import DriveRun
 
 REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")
@@ -53,6 +53,7 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "attempts": attempts,
         "accepted": len(accepted),
         "camera_duty_cycle": _num(attempts / run.frames_available if run.frames_available else 0.0),
+        **error_directions(run, accepted),
         "max_error_m": _num(float(err["online"].max())),
         "p95_error_m": _num(float(np.percentile(err["online"], 95))),
         "imu_only_drift_m_per_km": _num(per_km(rmse(err["imu_only"]))),
@@ -68,6 +69,18 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "duration_s": _num(float(run.t[-1] - run.t[0])),
         "wall_s": _num(run.wall_s),
     }
+
+
+def error_directions(run: DriveRun, accepted: list) -> dict[str, float | None]:
+    """Where the error lies: RMS of the online error along and across the true heading (the ATE's alignment)
+    and of the accepted fixes' error against the truth at their capture time, metres (None without fixes)."""
+    track = track_errors(run.online_xy, run.truth_xy, run.truth_theta, float(run.online_theta[0]),
+                         float(run.truth_theta[0]))
+    fixes = fix_errors(np.array([o.capture_t for o in accepted]), np.array([o.xy for o in accepted]), run.t,
+                       run.truth_xy, run.truth_theta)
+    fix_rms = (lambda k: _num(rmse(fixes[:, k]))) if len(fixes) else (lambda k: None)
+    return {"ate_along_m": _num(rmse(track[:, 0])), "ate_cross_m": _num(rmse(track[:, 1])),
+            "fix_error_along_rms_m": fix_rms(0), "fix_error_cross_rms_m": fix_rms(1)}
 
 
 def reported_var(run: DriveRun) -> np.ndarray:
