@@ -79,7 +79,7 @@ def test_the_command_prints_fixes_per_km_and_names_bad_input(capsys):
     assert row40[:2] == ["40.0", "25.0"] and float(row40[2]) < float(row40[3])
     assert bound.main(["--q-speed", "0.035", "--fix-mix", "0.5:0.2,oops", "--fixes", "300"]) == 2
     assert "--fix-mix item 'oops'" in capsys.readouterr().err
-    assert bound.main(["--q-speed", "0.035", "--fix-sigma", "0.8", "--spacing-m", "0", "--fixes", "300"]) == 2
+    assert bound.main(["--q-speed", "0.035", "--fix-sigma", "0.8", "--spacings", "40,0", "--fixes", "300"]) == 2
     assert "spacings > 0" in capsys.readouterr().err
     with pytest.raises(ValueError, match="more than 50 fixes"):
         bound.along_track_rms(bound.Drift(0.05), np.full(10, 0.5), 4.0)

@@ -2,8 +2,8 @@
 spacing, when the IMU's speed error drifts as `taco-mav drift` measures. It answers "can any estimator meet this
 accuracy with these fixes at this budget?" before one tunes the real filter.
 
-    python tools/fix_budget_bound.py --q-speed 0.059 --fix-sigma 0.80 --spacing-m 40 --speed-mps 8.2 --latency 1
-    python tools/fix_budget_bound.py --q-speed 0.059 --fix-mix 0.19:1.38,0.26:0.79,0.42:0.42,0.13:0.24 \\
+    python tools/fix_budget_bound.py --q-speed 0.035 --fix-sigma 0.80 --spacings 40 --speed-mps 8.2 --latencies 1
+    python tools/fix_budget_bound.py --q-speed 0.035 --fix-mix 0.19:1.38,0.26:0.79,0.42:0.42,0.13:0.24 \\
         --spacings 20,25,33,40 --latencies 0,1
 
 Model (along track only, relative to dead reckoning; metres, seconds):
@@ -53,8 +53,11 @@ def transition(drift: Drift, tau: float) -> tuple[np.ndarray, np.ndarray]:
     return phi, phi @ E[:3, 3:]
 
 
+BURN_IN = 50  # fixes before the average starts: the wide initial covariance is forgotten by then
+
+
 def along_track_rms(drift: Drift, sigmas: np.ndarray, period_s: float, latency_s: float = 0.0,
-                    steps_per_period: int = 20, burn_in: int = 50) -> float:
+                    steps_per_period: int = 20, burn_in: int = BURN_IN) -> float:
     """Time-averaged RMS along-track error, metres, of the optimal filter with one fix every period_s seconds;
     sigmas: the 1-sigma of each fix in order, metres (the first burn_in are not averaged)."""
     if period_s <= 0.0 or latency_s < 0.0 or len(sigmas) <= burn_in:
@@ -113,18 +116,16 @@ def main(argv: list[str] | None = None) -> int:
     src = ap.add_mutually_exclusive_group(required=True)
     src.add_argument("--fix-sigma", type=float, help="every fix's along-track 1-sigma, m")
     src.add_argument("--fix-mix", help="SHARE:SIGMA,...: fix sigmas (m) drawn per fix in these shares")
-    ap.add_argument("--spacing-m", type=float, default=40.0, help="distance between fixes, m (default 40)")
-    ap.add_argument("--spacings", help="several spacings, m, e.g. 20,25,33,40 (instead of --spacing-m)")
+    ap.add_argument("--spacings", default="40", help="distances between fixes, m, e.g. 25,33,40 (default 40)")
     ap.add_argument("--speed-mps", type=float, default=8.2, help="mean speed, m/s (default 8.2, KITTI's)")
     ap.add_argument("--latencies", default="0", help="matcher latencies, s, e.g. 0,1 (default 0)")
-    ap.add_argument("--latency", type=float, help="one matcher latency, s (instead of --latencies)")
     ap.add_argument("--fixes", type=int, default=2000, help="fixes averaged over (default 2000)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the --fix-mix draws (default 0)")
     a = ap.parse_args(argv)
     try:
         mix = parse_mix(a.fix_mix) if a.fix_mix else [(1.0, a.fix_sigma)]
-        spacings = [float(s) for s in a.spacings.split(",")] if a.spacings else [a.spacing_m]
-        latencies = [a.latency] if a.latency is not None else [float(x) for x in a.latencies.split(",")]
+        spacings = [float(s) for s in a.spacings.split(",")]
+        latencies = [float(x) for x in a.latencies.split(",")]
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -133,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     drift = Drift(a.q_speed, a.q_bias)
-    sigmas = fix_sigmas(mix, a.fixes + 50, a.seed)
+    sigmas = fix_sigmas(mix, a.fixes + BURN_IN, a.seed)
     print(f"along-track RMS error of the optimal filter, m (q_speed {a.q_speed}, q_bias {a.q_bias}, "
           f"{a.speed_mps} m/s, fix sigmas {', '.join(f'{s:g}:{v:g} m' for s, v in mix)})")
     print("spacing m  fixes/km  " + "  ".join(f"latency {lat:g} s" for lat in latencies))

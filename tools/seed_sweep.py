@@ -86,11 +86,11 @@ def table(rows: list[dict[str, Any]]) -> str:
             ates = [r["ate_m"] for r in group]
             cov2 = [r["coverage_2sigma"] for r in group if r.get("coverage_2sigma") is not None]
             cov = f" 2-sigma coverage {min(cov2):.2f}-{max(cov2):.2f}" if cov2 else ""
-            cov += "; along/cross track (RMS over the runs): error " + _pair(group, "ate_along_m", "ate_cross_m") \
-                + ", fixes " + _pair(group, "fix_error_along_rms_m", "fix_error_cross_rms_m")
+            split = ("; along/cross track (RMS over the runs): error " + _pair(group, "ate_along_m", "ate_cross_m")
+                     + ", fixes " + _pair(group, "fix_error_along_rms_m", "fix_error_cross_rms_m"))
             lines.append(f"{area:5s} L{lat:g}: " + "  ".join(parts)
                          + f" | median {statistics.median(ates):.3f} mean {statistics.mean(ates):.3f} "
-                           f"max {max(ates):.2f} above 1 m: {sum(a > 1.0 for a in ates)}/{len(ates)}{cov}")
+                           f"max {max(ates):.2f} above 1 m: {sum(a > 1.0 for a in ates)}/{len(ates)}{cov}{split}")
     return "\n".join(lines)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from taco_mav.evaluation.metrics import (coverage, fix_errors, h_acc_from_var, path_length_m, position_errors,
                                          rmse, steady_state_rmse, track_errors)
+from taco_mav.core.localiser import FixOutcome
 from taco_mav.evaluation.runner import DriveRun
 
 REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")
@@ -71,7 +72,7 @@ def metrics(run: DriveRun) -> dict[str, Any]:
     }
 
 
-def error_directions(run: DriveRun, accepted: list) -> dict[str, float | None]:
+def error_directions(run: DriveRun, accepted: list[FixOutcome]) -> dict[str, float | None]:
     """Where the error lies: RMS of the online error along and across the true heading (the ATE's alignment)
     and of the accepted fixes' error against the truth at their capture time, metres (None without fixes)."""
     track = track_errors(run.online_xy, run.truth_xy, run.truth_theta, float(run.online_theta[0]),
