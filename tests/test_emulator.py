@@ -149,3 +149,52 @@ def test_answers_with_the_cameras_true_position() -> None:
         a, b = plain.match(frame(k * 0.1), five_crops()), armed.match(frame(k * 0.1), five_crops())
         for x, y in zip(a, b):
             assert y.t == pytest.approx(x.t + shift, abs=1e-9) and y.w == x.w and np.array_equal(y.R, x.R)
+
+
+def test_place_field_is_a_standard_normal_field_with_the_configured_correlation_length() -> None:
+    from taco_mav.cvgl.emulator import PlaceField
+    length = 20.0
+    p = np.array(TRUTH[:2])
+    fields = [PlaceField(seed, length) for seed in range(3000)]
+    assert PlaceField(5, length)(*p) == fields[5](*p)  # deterministic per seed
+    z0 = np.array([f(*p) for f in fields])
+    assert abs(z0.mean()) < 0.06 and z0.std() == pytest.approx(1.0, abs=0.05)
+    for d in (0.5 * length, length, 2.0 * length):
+        zd = np.array([f(p[0] + 0.6 * d, p[1] + 0.8 * d) for f in fields])
+        assert np.corrcoef(z0, zd)[0, 1] == pytest.approx(math.exp(-0.5 * (d / length) ** 2), abs=0.06)
+
+
+def _log_errors(cfg: EmulatorConfig, east: float, seeds: range) -> np.ndarray:
+    """ln |error| of the five crops of one frame at (TRUTH + east metres), one row per seed (nominal answers); the
+    frame time differs per place, so only the place's part can be shared between places."""
+    truth = (TRUTH[0] + east, TRUTH[1], TRUTH[2])
+    crops = [Crop(c.image, c.centre_utm + [east, 0.0], c.heading, c.m_per_px) for c in five_crops()]
+    rows = []
+    for seed in seeds:
+        m = EmulatorMatcher(cfg, lambda t: truth, cross_area=True, seed=seed)
+        m.match(frame(1.0 + east), crops)
+        rows.append([math.log(d.err_m) for d in m.last_draws])
+    return np.array(rows)
+
+
+def test_a_place_share_correlates_nearby_answers_and_keeps_the_published_figures() -> None:
+    nominal = dict(symmetric_lock_rate=0.0, silent_outlier_rate=0.0)
+    iid = dataclasses.replace(EmulatorConfig(), **nominal)
+    # share 0 (the default): the place field is never consulted; a length alone changes no draw
+    a = _log_errors(iid, 0.0, range(3))
+    assert np.array_equal(a, _log_errors(dataclasses.replace(iid, place_length_m=5.0), 0.0, range(3)))
+    shared = dataclasses.replace(iid, place_share=0.8, place_length_m=20.0)
+    here, near, far = (_log_errors(shared, e, range(1500)) for e in (0.0, 5.0, 200.0))
+    crops_corr = np.corrcoef(here[:, 0], here[:, 1])[0, 1]
+    assert crops_corr == pytest.approx(0.8, abs=0.06)  # crops of one frame share the place's part
+    assert np.corrcoef(here[:, 0], near[:, 0])[0, 1] == pytest.approx(0.8 * math.exp(-0.5 * 0.25**2), abs=0.06)
+    assert abs(np.corrcoef(here[:, 0], far[:, 0])[0, 1]) < 0.08
+    assert abs(np.corrcoef(*_log_errors(iid, 0.0, range(1500))[:, :2].T)[0, 1]) < 0.08  # independent without
+    err = np.exp(here.ravel())  # over many places (one field per seed) the published figures hold
+    assert np.median(err) == pytest.approx(4.15, rel=0.08) and np.mean(err) == pytest.approx(7.31, rel=0.12)
+
+
+def test_place_share_out_of_range_is_refused_by_name() -> None:
+    from taco_mav.config.loading import profile_from_dict
+    with pytest.raises(ConfigError, match="place_share"):
+        profile_from_dict({"emulator": {"place_share": 1.5}})

@@ -116,6 +116,12 @@ class EmulatorConfig:
     weight_noise: float = field(default=0.05, metadata=bounded(0.0))
     outlier_min_error_m: float = field(default=5.0, metadata=bounded(0.0))  # silent outliers: U(this, capture)
     miss_weight_max: float = field(default=0.15, metadata=bounded(0.0, 1.0, open_lo=True))  # outside capture radius
+    # Not in the paper: the share of the log-error variance that belongs to the place rather than the query (0:
+    # every answer independent, as FG2's per-image figures are published; 1: every answer near one place equally
+    # good), correlated over place_length_m (Gaussian kernel). A real matcher is worse in some streets than in
+    # others, so answers a few metres apart, and crops of one frame, are not independent (docs/matchers.md).
+    place_share: float = field(default=0.0, metadata=bounded(0.0, 1.0))
+    place_length_m: float = field(default=20.0, metadata=bounded(0.0, open_lo=True))
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,10 @@ Model (all parameters in `EmulatorConfig`; docs/matchers.md has the reasoning):
     radius), w ~ U(0.3, 0.8): the gate cannot catch it.
   The published median/mean describe the nominal outcome; the failure modes come on top (with the default
   rates they raise the same-area mean by about 0.5 m).
+- place (`place_share`, default 0): a nominal error's log-normal draw is split into a part shared by the place
+  (a smooth random field over the ground at the camera's position, correlation length `place_length_m`) and a
+  part of its own, keeping the marginal distribution. With 0 every answer is independent, even the crops of one
+  frame; with a share, weak answers come in stretches, as a real matcher's do in a street it finds hard.
 - lever arm: FG2 localises the camera, so the emulator answers with the CAMERA's true position (truth + the
   camera's (forward, left) offset from the reference point rotated by the true heading, `lever_fwd_left`) plus
   its noise; the capture radius is measured from the camera too. The Localiser takes the same lever arm off.
@@ -82,10 +86,27 @@ def frame_rng(seed: int, t: float, index: int) -> np.random.Generator:
     return np.random.default_rng([int(seed) % (1 << 63), t_ms, int(index)])
 
 
+class PlaceField:
+    """A smooth standard-normal random field over the ground, z(E, N) (UTM metres): how hard the place is for the
+    matcher. Random Fourier features of a Gaussian kernel, so corr(z(p), z(p + d)) = exp(-|d|^2 / (2 L^2)) with
+    L = length_m; deterministic per seed and independent of query order."""
+
+    def __init__(self, seed: int, length_m: float, features: int = 64) -> None:
+        rng = np.random.default_rng([int(seed) % (1 << 63), 0x91ACE])
+        self.omega = rng.normal(0.0, 1.0 / length_m, size=(features, 2))  # rad/m
+        self.phase = rng.uniform(0.0, 2.0 * math.pi, size=features)
+        self.scale = math.sqrt(2.0 / features)
+
+    def __call__(self, east: float, north: float) -> float:
+        """z at a ground position, UTM metres; N(0, 1) over the fields a seed draws."""
+        return self.scale * float(np.cos(self.omega @ np.array([east, north]) + self.phase).sum())
+
+
 def draw(rng: np.random.Generator, cfg: EmulatorConfig, t_true: np.ndarray, psi_true: float,
-         crop_half_m: float, cross_area: bool = False) -> Draw:
+         crop_half_m: float, cross_area: bool = False, place_z: float = 0.0) -> Draw:
     """One emulated FG2 answer for a crop. t_true: true vehicle position in the crop's (forward, left) frame,
-    metres; psi_true: true heading minus crop heading, rad; crop_half_m: half the crop side, metres."""
+    metres; psi_true: true heading minus crop heading, rad; crop_half_m: half the crop side, metres; place_z: the
+    place field at the camera (enters a nominal error's log with the weight cfg.place_share)."""
     distance = float(np.hypot(*t_true))
     if distance > cfg.capture_radius_m:
         t = rng.uniform(-crop_half_m, crop_half_m, size=2)
@@ -109,7 +130,11 @@ def draw(rng: np.random.Generator, cfg: EmulatorConfig, t_true: np.ndarray, psi_
     else:
         outcome = Outcome.NOMINAL
         mu, sigma = lognormal_params(median, mean)
-        err = rng.lognormal(mu, sigma)
+        if cfg.place_share > 0.0:  # the same marginal log-normal, part of it shared by the place
+            z = math.sqrt(cfg.place_share) * place_z + math.sqrt(1.0 - cfg.place_share) * rng.standard_normal()
+            err = math.exp(mu + sigma * z)
+        else:
+            err = rng.lognormal(mu, sigma)
         w = math.exp(-err / cfg.weight_scale_m) + rng.normal(0.0, cfg.weight_noise)
     w = float(np.clip(w, 0.01, 1.0))
     return Draw(outcome, np.asarray(t_true, float) + err * direction, float(err), _wrap(float(psi)), w)
@@ -134,6 +159,7 @@ class EmulatorMatcher:
         self.cross_area = cross_area
         self.seed = cfg.seed if seed is None else int(seed)
         self.lever = (float(lever_fwd_left[0]), float(lever_fwd_left[1]))
+        self.place = PlaceField(self.seed, cfg.place_length_m)
         self.last_draws: list[Draw] = []  # the draws behind the last match() (for diagnostics and tests)
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
@@ -143,13 +169,14 @@ class EmulatorMatcher:
         (lf, ll), c0, s0 = self.lever, math.cos(theta), math.sin(theta)
         E, N = E + c0 * lf - s0 * ll, N + s0 * lf + c0 * ll  # the camera's true ground position
         draws: list[Draw] = []
+        place_z = self.place(E, N) if self.cfg.place_share > 0.0 else 0.0
         for i, crop in enumerate(crops):
             d = np.array([E - crop.centre_utm[0], N - crop.centre_utm[1]])
             ct, st = math.cos(crop.heading), math.sin(crop.heading)
             t_true = np.array([d[0] * ct + d[1] * st, -d[0] * st + d[1] * ct])
             half = 0.5 * crop.image.shape[0] * crop.m_per_px if crop.image.size else self.cfg.capture_radius_m
             draws.append(draw(frame_rng(self.seed, frame.t, i), self.cfg, t_true, _wrap(theta - crop.heading),
-                              half, self.cross_area))
+                              half, self.cross_area, place_z))
         self.last_draws = draws
         elapsed = (time.perf_counter() - start) / max(len(crops), 1)
         out = []
