@@ -145,6 +145,35 @@ def test_held_recovery_answers_wait_for_a_slow_matcher():
         assert out[:2] == ["hold", "hold"] and out[2] == expect, (latency, out)
 
 
+def test_recovery_answers_agree_when_one_speed_error_along_the_track_explains_them():
+    """Stop 27: lock is mostly lost through a bad fix that left the speed wrong, and then every true answer's
+    correction z - x grows by metres per second along the driven track, so three of them never agree pairwise
+    within confirm_agree_m. They agree when one offset plus one speed error carried along the track (the
+    integral of the unit heading vector, a) explains them all within confirm_agree_m; a speed error beyond
+    confirm_speed_error_mps, or answers that scatter, do not."""
+    P = np.eye(6)
+    times = np.array([20.0, 22.0, 24.0])
+    heading = 0.3 + 0.1 * (times - 20.0)  # a gentle curve
+    a = np.column_stack([np.cumsum(2.0 * np.cos(heading)), np.cumsum(2.0 * np.sin(heading))])  # s, ENU
+
+    def outcomes(speed_error, cse, scatter=0.0):
+        loc = make_localiser(dataclasses.replace(CONFIRM, plus=dataclasses.replace(
+            CONFIRM.plus, confirm_speed_error_mps=cse)), 0.0)
+        rng = np.random.default_rng(1)
+        out = []
+        for k, t in enumerate(times):
+            loc._odo = 16.0 * k  # 8 m/s
+            c = np.array([-18.0, 6.0]) + speed_error * a[k] + scatter * rng.normal(size=2)
+            out.append(loc._hold(LockState.LOST, c, float(np.linalg.norm(c)), P, t, 1.0, a[k]))
+        return out
+
+    assert outcomes(2.0, 3.0) == ["hold", "hold", "confirmed"]
+    assert outcomes(2.0, 0.0) == ["hold", "hold", "hold"]  # pairwise they are 4 m apart each
+    assert outcomes(0.0, 0.0)[2] == "confirmed"  # agreeing pairwise still confirms without it
+    assert outcomes(4.0, 3.0) == ["hold", "hold", "hold"]  # a speed error the IMU cannot have
+    assert outcomes(2.0, 3.0, scatter=10.0) == ["hold", "hold", "hold"]  # chance peaks that scatter
+
+
 def test_rejected_answers_widen_the_reported_accuracy_only_when_they_agree():
     """Two innovation-gate rejections in a row widen the *reported* accuracy to half their distance, as evidence
     that the estimate is elsewhere, only when they point at the same correction; chance peaks that scatter (on
@@ -173,3 +202,26 @@ def test_rejected_answers_widen_the_reported_accuracy_only_when_they_agree():
         assert reasons[-2:] == ["innovation_gate"] * 2, reasons
         assert bool(notes) is widened, (offsets, w, notes)
         assert bool(sig.max() > 10.0) is widened, (w, sig.max())
+
+
+def test_kitti_09_keeps_the_track_when_cross_area_answers_go_together_by_place(kitti_root):
+    """Stop 27 on real KITTI 09 OXTS: with the emulator's cross-area answers sharing half their log-error with the
+    place (place_share 0.5 over 10 m), seed 4, 1 s late, a consensus answer 7.6 m off is taken 13 s in; the
+    speed and bias it leaves make the error grow by metres per second, lock is lost, and with pairwise agreement
+    alone no three recovery answers ever agree: 109 m ATE. With the speed error in the agreement the track is
+    found again."""
+    from pathlib import Path
+
+    from taco_mav.config import replace_in
+    from taco_mav.evaluation.evaluate import EvalRequest, load_drives, resolve_profile
+    from taco_mav.evaluation.runner import run_drive
+    from taco_mav.evaluation.summary import metrics
+
+    req = EvalRequest(out=Path("."), kitti_root=kitti_root, sequences=("09",), estimator="taco+", seed=4,
+                      latency_s=1.0, cross_area=True)
+    prof = replace_in(replace_in(resolve_profile(req), "emulator.place_share", 0.5), "emulator.place_length_m", 10.0)
+    drive = load_drives(req)[0]
+    ate = {cse: metrics(run_drive(drive, replace_in(prof, "plus.confirm_speed_error_mps", cse), latency_s=1.0,
+                                  cross_area=True)) for cse in (0.0, 3.0)}
+    assert ate[0.0]["ate_m"] > 50.0 and ate[0.0]["lock_recoveries"] == 0
+    assert ate[3.0]["ate_m"] < 10.0 and ate[3.0]["lock_recoveries"] >= 1 and ate[3.0]["max_error_m"] < 40.0

@@ -169,6 +169,12 @@ class PlusConfig:
     # Held answers kept at once (the newest): a chance peak between two true answers must not reset the count
     # (3-D world seed 4: true, true, chance, chance, true, true ...).
     confirm_keep: int = field(default=4, metadata=bounded(1))
+    # Held answers also agree when one correction plus one speed error carried along the driven track explains
+    # them all within confirm_agree_m (at least 3 answers, the speed error at most this, m/s; 0: off). Lock is
+    # mostly lost through a bad fix that left the speed (and the accelerometer bias) wrong, and then the error,
+    # and so each true answer's correction, grows by metres per second: pairwise agreement within a few metres
+    # never comes (docs/taco_plus.md, stop 27: cross-area answers that go together by place).
+    confirm_speed_error_mps: float = field(default=3.0, metadata=bounded(0.0))
     # confirm_answers for a held jump while not lost; 0: never (loss of lock and the recovery grid decide). 0 as
     # answers 0.5 s apart share their view: 3-D seed 3 had three in a row 18-21 m off that 3 relocalised onto
     # (ATE 2.5 m; 0: 1.8 m; seed 4 1.37 m either way).

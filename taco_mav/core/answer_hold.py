@@ -8,6 +8,7 @@ World frame ENU metres, times autopilot seconds; a correction is z - x (the fix 
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -34,7 +35,7 @@ class AnswerHoldMixin:
     _floor_m: float
 
     def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float,
-              latency_s: float = 0.0) -> str | None:
+              latency_s: float = 0.0, track_unit: np.ndarray | None = None) -> str | None:
         """Whether an answer that passed the weight, yaw and chi-square gates must be confirmed first: None (no:
         apply it), "hold" (kept, not applied) or "confirmed" (it is the confirm_answers-th (lost) or
         jump_confirm_answers-th (not lost; 0: never) answer implying the same correction z - x, to within
@@ -44,7 +45,9 @@ class AnswerHoldMixin:
         sqrt(lambda_max(P) + jump_confirm_floor_m^2), P the prior position covariance (m^2): a jump the IMU
         track's own uncertainty does not allow. Up to confirm_keep distinct held answers are kept side by side.
         The window stretches to 3 answer latencies (latency_s: arrival minus capture, s), so a matcher slower
-        than confirm_window_s per answer can still confirm."""
+        than confirm_window_s per answer can still confirm. They also agree when one correction plus one speed
+        error carried along the track explains them (`_explained_by_speed`; track_unit: the integral of the unit
+        heading vector up to the answer's capture, s, ENU)."""
         q = self.q
         if state is LockState.LOST:
             if not q.recover_confirm:
@@ -59,18 +62,43 @@ class AnswerHoldMixin:
         held = [h for h in self._held if t - h[1] <= window]
         near = [(self._disagreement(innov, self._odo, h[0], h[2]), i) for i, h in enumerate(held)]
         near = [(d, i) for d, i in near if d <= q.confirm_agree_m]
+        need = q.confirm_answers if state is LockState.LOST else q.jump_confirm_answers
+        if need > 0 and self._explained_by_speed(held, innov, track_unit, need):
+            self._held = []
+            return "confirmed"
         if near:
             i = min(near)[1]
             n = held[i][3] + 1
-            need = q.confirm_answers if state is LockState.LOST else q.jump_confirm_answers
             if need > 0 and n >= need:
                 self._held = []
                 return "confirmed"
             del held[i]
         else:
             n = 1
-        self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n)])[-q.confirm_keep:]
+        self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n, track_unit)])[-q.confirm_keep:]
         return "hold"
+
+    def _explained_by_speed(self, held: list, innov: np.ndarray, track_unit: np.ndarray | None, need: int) -> bool:
+        """Whether this answer and need - 1 held ones imply corrections c_i = z - x (ENU m) that one offset e and
+        one speed error s (m/s, |s| <= confirm_speed_error_mps) explain as c_i = e + s a_i, each within
+        confirm_agree_m; a_i: the integral of the unit heading vector to answer i's capture (s, ENU), so s a_i is
+        how far a speed error carries the estimate along the driven track. Needs three answers or more (two
+        always fit)."""
+        q = self.q
+        if q.confirm_speed_error_mps <= 0.0 or need < 3 or track_unit is None:
+            return False
+        usable = [h for h in held if h[4] is not None]
+        for combo in itertools.combinations(usable, need - 1):
+            c = np.concatenate([h[0] for h in combo] + [np.asarray(innov, dtype=float)])
+            a = np.concatenate([h[4] for h in combo] + [track_unit])
+            A = np.zeros((len(c), 3))
+            A[0::2, 0] = A[1::2, 1] = 1.0
+            A[:, 2] = a
+            sol = np.linalg.lstsq(A, c, rcond=None)[0]
+            residual = np.linalg.norm((c - A @ sol).reshape(-1, 2), axis=1)
+            if abs(sol[2]) <= q.confirm_speed_error_mps and float(residual.max()) <= q.confirm_agree_m:
+                return True
+        return False
 
     def _failed(self, reason: str, innovation_m: float, innov: np.ndarray | None = None) -> None:
         """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared

@@ -89,12 +89,13 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
                                        s2=min(max(q.fix_scale_initial, q.fix_scale_min), q.fix_scale_max) ** 2)
         self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
         self._odo = 0.0  # distance travelled, metres (new frames only)
+        self._track_unit = np.zeros(2)  # integral of the compass's unit heading vector over time, s (ENU)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
         self._deferred = 0  # weak answers deferred in a row (defer_w)
         # held answers (jump_confirm_k, recover_confirm), newest last: (the correction z - x at capture (ENU m),
         # arrival t of the latest agreeing answer, odometer then, answers that agreed so far)
-        self._held: list[tuple[np.ndarray, float, float, int]] = []
+        self._held: list[tuple[np.ndarray, float, float, int, np.ndarray | None]] = []
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -124,6 +125,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         # accelerometer error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a
         # smooth 3 m/s cruise fell inside 3 sigma within seconds and the ZUPT pinned it to zero). Never while
         # the autopilot drives, nor while the safety guard holds zero-velocity updates off.
+        inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
+        mid = tick.theta_start + 0.5 * inc.d_theta
+        self._track_unit = self._track_unit + inc.dt * np.array([math.cos(mid), math.sin(mid)])
+        tick.track_unit = self._track_unit
         q = self.q
         tau = max(self.t - self._speed_seen_t, 0.0)
         drift = (math.sqrt(max(float(self.ukf.P[4, 4]), 0.0)) + q.imu_accel_sigma_mps2) * tau
@@ -303,7 +308,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
             self._failed("innovation_gate", jump, innov if c.weight >= qp.guard_w_min else None)
             return self._log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
                                         nis, weights))
-        held = self._hold(state, innov, jump, Pz, now, now - q.capture_t)
+        held = self._hold(state, innov, jump, Pz, now, now - q.capture_t, tick.track_unit)
         if held == "hold":
             self._failed("unconfirmed", jump)
             return self._log(FixOutcome(query_id, False, "unconfirmed", q.capture_t, now, k, z, psi[k], s_f, s_l, nis,

@@ -117,6 +117,7 @@ class PlusParams:
     confirm_window_s: float = 10.0  # a held answer expires after this long
     confirm_answers: int = 2  # agreeing answers that confirm it (the held one included)
     confirm_keep: int = 4  # held answers kept at once (the newest)
+    confirm_speed_error_mps: float = 0.0  # ... or one offset plus a speed error up to this explains them (0: off)
     jump_confirm_answers: int = 0  # ... the same while not lost (a held jump); 0: never
     recover_chi2_gate: float = 0.0  # recovery answers beyond this NIS under the widened P are refused (0: off)
 
