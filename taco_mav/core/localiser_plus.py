@@ -94,7 +94,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
         self._deferred = 0  # weak answers deferred in a row (defer_w)
         # held answers (jump_confirm_k, recover_confirm), newest last: (the correction z - x at capture (ENU m),
-        # arrival t of the latest agreeing answer, odometer then, answers that agreed so far)
+        # arrival t of the latest agreeing answer, odometer then, answers that agreed so far, the integral of the
+        # unit heading vector at capture (s, ENU; confirm_speed_error_mps))
         self._held: list[tuple[np.ndarray, float, float, int, np.ndarray | None]] = []
 
     # ------------------------------------------------------------------ IMU path
@@ -120,15 +121,15 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
                 or self.t <= self._camera_moving_until)
 
     def _open_tick(self, tick: _Tick) -> None:
+        inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
+        mid = tick.theta_start + 0.5 * inc.d_theta
+        self._track_unit = self._track_unit + inc.dt * np.array([math.cos(mid), math.sin(mid)])
+        tick.track_unit = self._track_unit
         # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot tell from
         # zero. The speed the IMU may have lost since the speed was last observed (a fix, a stop) is what its
         # accelerometer error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a
         # smooth 3 m/s cruise fell inside 3 sigma within seconds and the ZUPT pinned it to zero). Never while
         # the autopilot drives, nor while the safety guard holds zero-velocity updates off.
-        inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
-        mid = tick.theta_start + 0.5 * inc.d_theta
-        self._track_unit = self._track_unit + inc.dt * np.array([math.cos(mid), math.sin(mid)])
-        tick.track_unit = self._track_unit
         q = self.q
         tau = max(self.t - self._speed_seen_t, 0.0)
         drift = (math.sqrt(max(float(self.ukf.P[4, 4]), 0.0)) + q.imu_accel_sigma_mps2) * tau
