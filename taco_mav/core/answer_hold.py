@@ -35,7 +35,7 @@ class AnswerHoldMixin:
     _floor_m: float
 
     def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float,
-              latency_s: float = 0.0, track_unit: np.ndarray | None = None) -> str | None:
+              latency_s: float = 0.0, track_unit: tuple[float, float] | None = None) -> str | None:
         """Whether an answer that passed the weight, yaw and chi-square gates must be confirmed first: None (no:
         apply it), "hold" (kept, not applied) or "confirmed" (it is the confirm_answers-th (lost) or
         jump_confirm_answers-th (not lost; 0: never) answer implying the same correction z - x, to within
@@ -78,7 +78,8 @@ class AnswerHoldMixin:
         self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n, track_unit)])[-q.confirm_keep:]
         return "hold"
 
-    def _explained_by_speed(self, held: list, innov: np.ndarray, track_unit: np.ndarray | None, need: int) -> bool:
+    def _explained_by_speed(self, held: list, innov: np.ndarray, track_unit: tuple[float, float] | None,
+                            need: int) -> bool:
         """Whether this answer and need - 1 held ones imply corrections c_i = z - x (ENU m) that one offset e and
         one speed error s (m/s, |s| <= confirm_speed_error_mps) explain as c_i = e + s a_i, each within
         confirm_agree_m; a_i: the integral of the unit heading vector to answer i's capture (s, ENU), so s a_i is
@@ -90,7 +91,7 @@ class AnswerHoldMixin:
         usable = [h for h in held if h[4] is not None]
         for combo in itertools.combinations(usable, need - 1):
             c = np.concatenate([h[0] for h in combo] + [np.asarray(innov, dtype=float)])
-            a = np.concatenate([h[4] for h in combo] + [track_unit])
+            a = np.array([h[4] for h in combo] + [track_unit], dtype=float).ravel()
             A = np.zeros((len(c), 3))
             A[0::2, 0] = A[1::2, 1] = 1.0
             A[:, 2] = a

@@ -52,7 +52,7 @@ class _Tick:
     fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
     stationary: bool = False  # taco+: zero-velocity update at this frame
     dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
-    track_unit: np.ndarray | None = None  # taco+: integral of the unit heading vector over time to this frame, s
+    track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
     gnss: list[GnssMeasurement] = field(default_factory=list)  # real GNSS applied at this frame (replayed)
 
 

@@ -89,14 +89,14 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
                                        s2=min(max(q.fix_scale_initial, q.fix_scale_min), q.fix_scale_max) ** 2)
         self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
         self._odo = 0.0  # distance travelled, metres (new frames only)
-        self._track_unit = np.zeros(2)  # integral of the compass's unit heading vector over time, s (ENU)
+        self._track_unit = (0.0, 0.0)  # integral of the compass's unit heading vector over time, s (ENU)
         self._odo_at_query = 0.0  # ... when the last query was planned
         self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
         self._deferred = 0  # weak answers deferred in a row (defer_w)
         # held answers (jump_confirm_k, recover_confirm), newest last: (the correction z - x at capture (ENU m),
         # arrival t of the latest agreeing answer, odometer then, answers that agreed so far, the integral of the
         # unit heading vector at capture (s, ENU; confirm_speed_error_mps))
-        self._held: list[tuple[np.ndarray, float, float, int, np.ndarray | None]] = []
+        self._held: list[tuple[np.ndarray, float, float, int, tuple[float, float] | None]] = []
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
@@ -123,8 +123,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
     def _open_tick(self, tick: _Tick) -> None:
         inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
         mid = tick.theta_start + 0.5 * inc.d_theta
-        self._track_unit = self._track_unit + inc.dt * np.array([math.cos(mid), math.sin(mid)])
-        tick.track_unit = self._track_unit
+        ux, uy = self._track_unit
+        self._track_unit = tick.track_unit = (ux + inc.dt * math.cos(mid), uy + inc.dt * math.sin(mid))
         # The IMU alone cannot tell a smooth cruise from a stop: also require a speed the filter cannot tell from
         # zero. The speed the IMU may have lost since the speed was last observed (a fix, a stop) is what its
         # accelerometer error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a
