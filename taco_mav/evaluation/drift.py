@@ -37,6 +37,7 @@ from scipy.signal import savgol_filter
 
 from taco_mav.core.preintegration import enu_heading, level_forward_accel
 from taco_mav.errors import DataError
+from taco_mav.evaluation.metrics import along_cross, rmse
 from taco_mav.geo import wrap_angle
 
 __all__ = ["DriftReport", "measure_drift", "speed_model_std", "heading_model_std", "HORIZONS_S", "TAU_GRID_S"]
@@ -150,7 +151,7 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
     i0s = np.searchsorted(t, starts)
     rows: dict[str, list] = {k: [] for k in ("h", "n", "sv", "sth", "al", "cr")}
     for h in horizons_s:
-        dv, dth, al, cr = [], [], [], []
+        dv, dth, err, head = [], [], [], []
         for i0 in i0s:
             i1 = int(np.searchsorted(t, t[i0] + h))
             if i1 >= len(t) or not moving[i0:i1 + 1].all() or np.any(dt[i0:i1] > 0.5):
@@ -163,16 +164,12 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
             # mid-step heading, as Preintegrator.add; vectorised over the window
             mid = theta_c[i0:i1] + 0.5 * wrap_angle(theta_c[i0 + 1:i1 + 1] - theta_c[i0:i1])
             mid = mid - theta_c[i0] + th_t[i0]  # start on the true heading, as after a perfect fix
-            ex = x_t[i0] + np.sum(step * np.cos(mid)) - x_t[i1]
-            ey = y_t[i0] + np.sum(step * np.sin(mid)) - y_t[i1]
-            c, s = math.cos(th_t[i1]), math.sin(th_t[i1])
-            al.append(ex * c + ey * s)
-            cr.append(-ex * s + ey * c)
+            err.append((x_t[i0] + np.sum(step * np.cos(mid)) - x_t[i1], y_t[i0] + np.sum(step * np.sin(mid)) - y_t[i1]))
+            head.append(th_t[i1])
         if len(dv) >= 3:
-            for key, val in (("h", h), ("n", len(dv)), ("sv", float(np.sqrt(np.mean(np.square(dv))))),
-                             ("sth", float(np.sqrt(np.mean(np.square(dth))))),
-                             ("al", float(np.sqrt(np.mean(np.square(al))))),
-                             ("cr", float(np.sqrt(np.mean(np.square(cr)))))):
+            split = along_cross(np.array(err), np.array(head))
+            for key, val in (("h", h), ("n", len(dv)), ("sv", rmse(np.array(dv))), ("sth", rmse(np.array(dth))),
+                             ("al", rmse(split[:, 0])), ("cr", rmse(split[:, 1]))):
                 rows[key].append(val)
     if len(rows["h"]) < 3:
         raise DataError(f"drive {drive.name}: fewer than 3 horizons with 3 windows moving above "
