@@ -7,6 +7,9 @@ SIMSTATE (the true pose) at 10 Hz; answers PARAM_REQUEST_READ (GPS1_TYPE = `gps1
 COMMAND_LONG (ACK accepted) and TIMESYNC.
 Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; autopilot time = boot_s + elapsed.
 
+`flavour="px4"` speaks as PX4 SIH does instead: HEARTBEAT autopilot MAV_AUTOPILOT_PX4, HIGHRES_IMU (SI units),
+HIL_STATE_QUATERNION as the true pose (only once asked for, as PX4 streams it), no GPS2_RAW.
+
 Faults: `stall` silences IMU/ATTITUDE; `outage` closes the connection for a while (nothing sent or read; the
 vehicle drives on) and reopens it (UDP: a new socket, `udp_local_port` keeps the source port or not; TCP: the
 autopilot is the server, `transport="tcp"`, and closes and reopens its listening socket); `reboot_at` restarts
@@ -49,6 +52,7 @@ class MiniAutopilot:
     att_hz: float = 50.0
     boot_s: float = 100.0
     gps1_type: int = 14
+    flavour: str = "ardupilot"  # or "px4" (see the module docstring)
     send_simstate: bool = True
     stall: tuple[float, float] | None = None  # (from, to) elapsed s: no IMU/ATTITUDE (inputs stall)
     reboot_at: float | None = None  # elapsed s: the autopilot clock restarts at 1 s (a reboot)
@@ -133,11 +137,12 @@ class MiniAutopilot:
             mav = self.conn.mav
             stalled = self.stall is not None and self.stall[0] <= el < self.stall[1]
             if el >= next_hb:
-                mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, m.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, m.MAV_STATE_ACTIVE)
+                kind = m.MAV_AUTOPILOT_PX4 if self.flavour == "px4" else m.MAV_AUTOPILOT_ARDUPILOTMEGA
+                mav.heartbeat_send(m.MAV_TYPE_GROUND_ROVER, kind, 0, 0, m.MAV_STATE_ACTIVE)
                 next_hb += 1.0
             if el >= next_st:
                 mav.system_time_send(int(time.time() * 1e6), int(t_ap * 1e3))
-                if el < self.gps_s:
+                if el < self.gps_s and self.flavour != "px4":
                     lat, lon = self.truth_latlon(el)
                     mav.gps2_raw_send(int(t_ap * 1e6), 3, int(lat * 1e7), int(lon * 1e7), int(self.alt0 * 1e3),
                                       80, 120, int(self.speed * 100), int(self.yaw_deg * 100), 12, 0, 0)
@@ -147,13 +152,21 @@ class MiniAutopilot:
                     mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)
                 k_att += 1
             while k_imu / self.imu_hz <= el:
-                if not stalled:
+                if not stalled and self.flavour == "px4":
+                    mav.highres_imu_send(int(self.ap_time(k_imu / self.imu_hz) * 1e6), 0, 0, -9.80665, 0, 0, 0,
+                                         0, 0, 0, 0, 0, 0, 0, 0b111111)
+                elif not stalled:
                     mav.raw_imu_send(int(self.ap_time(k_imu / self.imu_hz) * 1e6), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
                 k_imu += 1
             if self.send_simstate and k_sim / 10.0 <= el:
                 lat, lon = self.truth_latlon(el)
-                mav.simstate_send(0.0, 0.0, math.radians(self.yaw_deg), 0, 0, -9.8, 0, 0, 0, int(lat * 1e7),
-                                  int(lon * 1e7))
+                if self.flavour != "px4":
+                    mav.simstate_send(0.0, 0.0, math.radians(self.yaw_deg), 0, 0, -9.8, 0, 0, 0, int(lat * 1e7),
+                                      int(lon * 1e7))
+                elif m.MAVLINK_MSG_ID_HIL_STATE_QUATERNION in self.commands:  # PX4 streams it when asked
+                    half = math.radians(self.yaw_deg) / 2
+                    mav.hil_state_quaternion_send(0, [math.cos(half), 0, 0, math.sin(half)], 0, 0, 0, int(lat * 1e7),
+                                                  int(lon * 1e7), int(self.alt0 * 1e3), 0, 0, 0, 0, 0, 0, 0, 0)
                 k_sim += 1
             self._answer()
             time.sleep(0.002)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from taco_mav.config import PROFILE_DIR, Profile, profile_from_dict
+from taco_mav.config import PROFILE_DIR, Profile, load_profile, profile_from_dict, profile_to_dict
 from taco_mav.geo import UtmProjector
 from taco_mav.link.daemon import Daemon, DaemonOptions
 from mav_autopilot import MiniAutopilot, free_udp_port
@@ -210,3 +210,35 @@ def test_stall_degrades_and_reboot_reanchors() -> None:
     # the 0.8 s without IMU spans the reboot and is not integrated: ~0.8 s x 5 m/s = 4 m behind until fixes pull
     # the estimate back (the first fix on the new clock comes 2 s after re-anchoring)
     assert math.hypot(e - e_t, n - n_t) < 5.5
+
+
+def test_px4_autopilot_gets_hil_gps_and_serves_its_truth_stream() -> None:
+    """On PX4 (HEARTBEAT autopilot 12) the px4_rover profile's HIL_GPS goes out under PX4's own sysid (PX4 takes
+    HIL_GPS only from it), and the simulator's pose is asked for as HIL_STATE_QUATERNION, never SIMSTATE: the
+    emulator matcher draws its fixes from it, so accepted fixes prove the stream was asked for and decoded."""
+    base = profile_to_dict(load_profile("px4_rover"))
+    base["matcher"], base["estimator"] = "emulator", "paper"  # paper mode's trigger asks within seconds at rest
+    port = free_udp_port()
+    daemon = Daemon(profile_from_dict(base), DaemonOptions(connect=f"udpin:127.0.0.1:{port}", origin=(49.0, 8.4, 115.0)))
+    daemon.start()
+    time.sleep(0.3)
+    ap = MiniAutopilot(port, flavour="px4", imu_hz=50.0, speed=0.0)  # at rest: no GNSS tells a start speed
+    ap.start()
+    time.sleep(DRIVE_S)
+    daemon.stop()
+    daemon.join(5.0)
+    ap.stop()
+    assert m_id("HIL_STATE_QUATERNION") in ap.commands and m_id("SIMSTATE") not in ap.commands
+    assert m_id("HIGHRES_IMU") in ap.commands
+    got = ap.of_type("HIL_GPS")
+    assert len(got) >= 30 and not ap.of_type("GPS_INPUT")  # 10 Hz for the ~4 s after the origin
+    assert all(r.msg.get_srcSystem() == 1 for r in got)
+    last = got[-1].msg
+    assert last.fix_type == 3 and last.satellites_visible == 10 and 0 < last.eph < 1000  # cm
+    assert last.vel == 0 and last.cog == 65535  # standing still: no course
+    assert daemon.summary()["fixes"].get("accepted", 0) >= 1
+    lat_t, lon_t = ap.truth_latlon(got[-1].t - ap.t_start)
+    proj = UtmProjector.for_latlon(lat_t, lon_t)
+    e_t, n_t = proj.to_utm(lat_t, lon_t)
+    e, n = proj.to_utm(last.lat * 1e-7, last.lon * 1e-7)
+    assert math.hypot(e - e_t, n - n_t) < 2.0

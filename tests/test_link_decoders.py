@@ -112,8 +112,21 @@ def test_gps_raw_int_scaling() -> None:
 
 def test_simstate_pose() -> None:
     d = Decoders()
-    p = d.simstate(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, -353632610, 1491652300)))
+    p = d.sim_pose(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, -353632610, 1491652300)))
     assert p.lat == pytest.approx(-35.363261) and p.lon == pytest.approx(149.16523) and p.yaw == pytest.approx(0.5)
+
+
+def test_hil_state_quaternion_pose() -> None:
+    """PX4 SIH's truth: yaw from the body-to-NED quaternion [w, x, y, z]; an unset position is refused."""
+    d = Decoders()
+    yaw = 2.0
+    q = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+    p = d.sim_pose(wire(lambda m: m.hil_state_quaternion_encode(0, q, 0, 0, 0, 473977432, 85455942, 488929,
+                                                                  0, 0, 0, 0, 0, 0, 0, 0)))
+    assert p.lat == pytest.approx(47.3977432) and p.lon == pytest.approx(8.5455942) and p.yaw == pytest.approx(yaw)
+    assert d.sim_pose(wire(lambda m: m.hil_state_quaternion_encode(0, q, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+                                                                     0))) is None
+    assert dict(d.rejected) == {"HIL_STATE_QUATERNION:range": 1}
 
 
 def test_positions_outside_utm_band_rejected() -> None:
@@ -122,7 +135,7 @@ def test_positions_outside_utm_band_rejected() -> None:
     assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 850_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is None
     assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, -805_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is None
     assert d.gnss(wire(lambda m: m.gps_raw_int_encode(1, 3, 839_000_000, 84_000_000, 0, 0, 0, 0, 0, 9))) is not None
-    assert d.simstate(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, 890_000_000, 1))) is None
+    assert d.sim_pose(wire(lambda m: m.simstate_encode(0, 0, 0.5, 0, 0, -9.8, 0, 0, 0, 890_000_000, 1))) is None
     assert dict(d.rejected) == {"GPS_RAW_INT:outside_utm": 2, "SIMSTATE:range": 1}
     d.reject("RAW_IMU", "foreign_source")
     assert d.rejected["RAW_IMU:foreign_source"] == 1

@@ -112,6 +112,28 @@ def test_gps_input_degraded_fix_type() -> None:
     assert msg.fix_type == 1
 
 
+def test_hil_gps_fields_and_units() -> None:
+    """PX4's GNSS path: eph/epv cm, velocity cm/s true north/east (PX4 marks it valid), course cdeg, alt mm."""
+    theta_grid = math.pi + ORIGIN.convergence  # heading true west, 2.5 m/s
+    sol = encoders.solution(est((10.0, -20.0), theta_grid, 2.5), ORIGIN, CFG, healthy=True)
+    msg = roundtrip(lambda mav: encoders.hil_gps(mav, sol, CFG, 1.7e9))
+    lat, lon = ORIGIN.latlon(np.array([10.0, -20.0]))
+    assert msg.lat == int(round(lat * 1e7)) and msg.lon == int(round(lon * 1e7)) and msg.alt == 115_000
+    assert msg.time_usec == 1_700_000_000_000_000 and msg.fix_type == 3 and msg.satellites_visible == 10
+    assert msg.eph == 200 and msg.epv == int(CFG.vertical_accuracy_m * 100)
+    assert msg.vel == 250 and msg.vn == 0 and msg.ve == -250 and msg.vd == 0
+    assert msg.cog == 27000 and msg.yaw == 27000 and msg.id == CFG.gps_id
+
+
+def test_hil_gps_at_rest_degraded_and_never_nan() -> None:
+    still = roundtrip(lambda mav: encoders.hil_gps(mav, encoders.solution(est(), ORIGIN, CFG, healthy=False), CFG, 0.0))
+    assert still.cog == 65535 and still.vel == 0 and still.fix_type == 1 and still.time_usec == 0
+    bad = Estimate(5.0, np.array([float("nan"), 1.0]), float("nan"), float("inf"), np.full((2, 2), np.nan), 0.0)
+    msg = roundtrip(lambda mav: encoders.hil_gps(mav, encoders.solution(bad, ORIGIN, CFG, healthy=True), CFG, 1.7e9))
+    assert msg.fix_type == 1 and msg.eph == 65534 and msg.vel == 0  # 1 km accuracy, clipped below "unknown"
+    assert msg.lat == int(round(49.0 * 1e7)) and msg.lon == int(round(8.4 * 1e7))
+
+
 def test_global_position_sensor() -> None:
     sol = encoders.solution(est((3.0, 4.0), t=12.5), ORIGIN, CFG, healthy=True)
     msg = roundtrip(lambda mav: encoders.global_position_sensor(mav, sol, CFG, 1, now_autopilot=12.75))

@@ -43,7 +43,7 @@ from taco_mav.link.gnss import GnssTracker
 from taco_mav.link.health import LinkWatch
 from taco_mav.link.imu_source import InputSources
 from taco_mav.link.imu_timeline import ImuTimeline
-from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE
+from taco_mav.link.mavconst import MAV_AUTOPILOT_PX4, SEV_INFO, SEV_NOTICE
 from taco_mav.link.motion import MotionPipeline
 from taco_mav.link.options import DaemonOptions, DaemonStats
 from taco_mav.link.output import OutputStage
@@ -142,19 +142,11 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
                 log.warning("camera speed off (plus.camera_speed): %s", e)
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
-        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
-        if (self.fixes.camera is not None and self.fixes.camera.needs_pose) or p.matcher == "emulator":
-            rates["SIMSTATE"] = p.link.imu_rate_hz  # simulators only (SITL sends it when asked): true pose
-        if self.imu_kind is not None:
-            rates[self.imu_kind] = p.link.imu_rate_hz
-        else:
-            rates["RAW_IMU"] = p.link.imu_rate_hz
-        rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
-        self.requester = StreamRequester(self.link.send, self.link.mav, rates) if p.link.request_rates else None
+        self.requester: StreamRequester | None = None  # made when the autopilot is adopted (`_request_streams`)
         self.params_check = ParamCheck(self.link.send, self.link.mav, p.output.gps_id,
                                        antenna_frd_m=p.output.antenna_frd_m) if p.link.check_params and \
             "gps_input" in p.output.messages else None
-        self.gnss = GnssTracker(p.output.gps_id, "gps_input" in p.output.messages, p.output.hdop_uere_m,
+        self.gnss = GnssTracker(p.output.gps_id, self.output.writes_gps, p.output.hdop_uere_m,
                                 self.params_check.types if self.params_check is not None else None)
         self.origin_chooser = OriginChooser()
         self.origin_request = MessageRequest(self.link.send, self.link.mav, ORIGIN_MESSAGES)
@@ -167,6 +159,21 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
         self.t_stats = Periodic(0.1, now + 10.0)
         self.gcs = GcsHealth()
         self.t_gcs = AutopilotPeriodic(GCS_HEALTH_HZ, now, self.clockmap.speed)  # NAMED_VALUE_FLOAT health
+
+    def _request_streams(self, autopilot: int) -> None:
+        """Ask the adopted autopilot (HEARTBEAT.autopilot: MAV_AUTOPILOT_*) for the input streams; a simulator's
+        true pose (world camera, emulator matcher) is SIMSTATE on ArduPilot SITL and HIL_STATE_QUATERNION on PX4
+        SIH (neither is sent unless asked for)."""
+        p = self.profile
+        if not p.link.request_rates:
+            return
+        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
+        if (self.fixes.camera is not None and self.fixes.camera.needs_pose) or p.matcher == "emulator":
+            rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
+        rates[self.imu_kind or "RAW_IMU"] = p.link.imu_rate_hz
+        rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
+        assert self.link is not None
+        self.requester = StreamRequester(self.link.send, self.link.mav, rates)
 
     def run(self) -> int:
         """The loop; returns 0 after a clean stop (logs flushed, threads stopped)."""

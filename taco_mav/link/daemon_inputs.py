@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from taco_mav.core.types import ImuSample
 from taco_mav.link.anchor import OriginCandidate
-from taco_mav.link.decoders import GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES
+from taco_mav.link.decoders import GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, POSE_MESSAGES
 from taco_mav.link.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S
 from taco_mav.link.imu_timeline import Verdict
 from taco_mav.link.mavconst import (MAV_AUTOPILOT_INVALID, MAV_MODE_FLAG_SAFETY_ARMED, MAV_TYPE_GCS,
@@ -30,7 +30,7 @@ DRIVE_THROTTLE_MIN_PCT = 3  # VFR_HUD throttle at or above this (armed) means th
 
 
 class DaemonInputs:
-    """Message dispatch and the IMU / attitude / VFR_HUD / SIMSTATE handlers of `Daemon`."""
+    """Message dispatch and the IMU / attitude / VFR_HUD / simulator-pose handlers of `Daemon`."""
 
     def _heard(self: Daemon) -> None:
         """A message from our autopilot: ends a link outage (event + STATUSTEXT, now that it is reachable)."""
@@ -51,7 +51,9 @@ class DaemonInputs:
             if (msg.autopilot != MAV_AUTOPILOT_INVALID and msg.type not in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER)
                     and (self.profile.link.target_sysid in (0, msg.get_srcSystem()))):
                 if link.adopt_autopilot(msg):
-                    self.events.write("autopilot", sysid=link.target_system, compid=link.target_component)
+                    self.events.write("autopilot", sysid=link.target_system, compid=link.target_component,
+                                      autopilot=msg.autopilot)
+                    self._request_streams(msg.autopilot)
                 if (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component):
                     self._heard()
                     self._armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
@@ -81,8 +83,8 @@ class DaemonInputs:
                 link.send(link.mav.timesync_encode(self.clockmap.request_ns(), msg.ts1))
             else:
                 self.clockmap.on_timesync_reply(msg.tc1, msg.ts1)
-        elif kind == "SIMSTATE":
-            self._on_simstate(msg)
+        elif kind in POSE_MESSAGES:
+            self._on_sim_pose(msg)
         elif kind == "VFR_HUD":
             self._on_vfr_hud(msg)
         elif kind == "COMMAND_ACK" and self.requester is not None:
@@ -156,9 +158,10 @@ class DaemonInputs:
         if set_drive is not None and self.last_imu is not None and self._armed is not None:
             set_drive(self.last_imu.t, self._armed and abs(throttle) >= DRIVE_THROTTLE_MIN_PCT)
 
-    def _on_simstate(self: Daemon, msg: Any) -> None:
-        """A simulator's true pose (SIMSTATE): to the fix pipeline (world camera, emulator matcher)."""
-        pose = self.decoders.simstate(msg)
+    def _on_sim_pose(self: Daemon, msg: Any) -> None:
+        """A simulator's true pose (SIMSTATE, HIL_STATE_QUATERNION): to the fix pipeline (world camera, emulator
+        matcher)."""
+        pose = self.decoders.sim_pose(msg)
         if pose is None or self.last_imu is None:
             return
         self.fixes.on_pose(self.last_imu.t, pose, self.origin)

@@ -131,7 +131,7 @@ class DaemonOrigin:
         if self.origin is None:
             self.origin_request.tick(now, link.target_system, link.target_component)
             if self.origin_chooser.notice_due(now):
-                ours = f"GPS{self.profile.output.gps_id + 1}" if "gps_input" in self.profile.output.messages else None
+                ours = f"GPS{self.profile.output.gps_id + 1}" if self.output.writes_gps else None
                 log.warning("no origin yet: give one with --origin LAT,LON[,ALT], set the EKF origin or home from "
                             "the ground station, or connect a real GNSS with a 3D fix%s",
                             f" (not {ours}: that instance carries our own output)" if ours else "")

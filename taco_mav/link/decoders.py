@@ -9,7 +9,8 @@ Frames and units (DESIGN.md):
 - GPS_RAW_INT (GPS instance 1) / GPS2_RAW (instance 2): lat/lon degE7, alt mm AMSL, eph HDOP x 100, vel cm/s,
   cog cdeg (65535 = unknown for all three), h_acc mm and vel_acc mm/s (0 = not reported).
 - GPS_GLOBAL_ORIGIN / HOME_POSITION: latitude/longitude degE7, altitude mm AMSL.
-- SIMSTATE (simulators only): lat/lng degE7, yaw radians NED (the true pose).
+- SIMSTATE (ArduPilot SITL) / HIL_STATE_QUATERNION (PX4 SIH, when asked for): lat/lng (lon) degE7, yaw radians
+  NED or the body-to-NED attitude quaternion [w, x, y, z] (the simulator's true pose).
 All times come out as autopilot seconds.
 """
 
@@ -29,6 +30,7 @@ IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_I
 UTM_LAT_MIN, UTM_LAT_MAX = -80.0, 84.0  # degrees: the daemon works on a UTM grid (geo.utm_epsg_for)
 GNSS_MESSAGES = {"GPS_RAW_INT": 1, "GPS2_RAW": 2}  # message -> GPS instance it reports (1 = GPS1), as ArduPilot
 ORIGIN_MESSAGES = ("GPS_GLOBAL_ORIGIN", "HOME_POSITION")
+POSE_MESSAGES = ("SIMSTATE", "HIL_STATE_QUATERNION")  # a simulator's true pose: ArduPilot SITL's, PX4 SIH's
 UNKNOWN_U16 = 65535
 MAX_ALT_M = 20_000.0  # |altitude| beyond this (m AMSL) is not a ground vehicle's
 MAX_SPEED_MPS = 150.0  # ground speed beyond this is not a ground vehicle's
@@ -256,10 +258,17 @@ class Decoders:
             return None
         return OriginReading(lat, lon, alt, kind)
 
-    def simstate(self, msg: Any) -> SimPose | None:
-        """SIMSTATE -> the simulator's true pose, or None (counted)."""
-        lat, lon, yaw = msg.lat * 1e-7, msg.lng * 1e-7, float(msg.yaw)
-        if not _finite(yaw) or not _on_utm_grid(lat, lon) or (msg.lat == 0 and msg.lng == 0):
-            self.reject("SIMSTATE", "range")
+    def sim_pose(self, msg: Any) -> SimPose | None:
+        """SIMSTATE or HIL_STATE_QUATERNION -> the simulator's true pose, or None (counted)."""
+        kind = msg.get_type()
+        if kind == "SIMSTATE":
+            lat_e7, lon_e7, yaw = msg.lat, msg.lng, float(msg.yaw)
+        else:
+            w, x, y, z = (float(v) for v in msg.attitude_quaternion)
+            lat_e7, lon_e7 = msg.lat, msg.lon
+            yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)) if _finite(w, x, y, z) else math.nan
+        lat, lon = lat_e7 * 1e-7, lon_e7 * 1e-7
+        if not _finite(yaw) or not _on_utm_grid(lat, lon) or (lat_e7 == 0 and lon_e7 == 0):
+            self.reject(kind, "range")
             return None
         return SimPose(lat, lon, yaw)

@@ -1,4 +1,4 @@
-"""Output encoders: the filter's estimate -> GPS_INPUT, GLOBAL_POSITION_SENSOR, ODOMETRY, STATUSTEXT.
+"""Output encoders: the filter's estimate -> GPS_INPUT, HIL_GPS, GLOBAL_POSITION_SENSOR, ODOMETRY, STATUSTEXT.
 
 Frames and units: the estimate is ENU metres relative to the origin on the UTM grid, heading theta on the grid
 (ENU rad). `Origin` maps it to WGS84 (lat/lon degE7 on the wire) and turns grid headings into true ones
@@ -160,6 +160,30 @@ def gps_input(mav: Any, sol: NavSolution, cfg: OutputConfig, unix_time_s: float)
         int(unix_time_s * 1e6) if unix_time_s > 0 else 0, cfg.gps_id, GPS_INPUT_IGNORE, week_ms, week, sol.fix_type,
         _degE7(sol.lat), _degE7(sol.lon), _f(sol.alt, 0.0), hdop, hdop, _f(sol.vn, 0.0), _f(sol.ve, 0.0), 0.0,
         _f(sol.speed_acc, 1.0), hacc, 0.0, cfg.satellites_visible, yaw)
+
+
+UNKNOWN_U16 = 65535  # HIL_GPS eph/epv/cog "unknown"
+MOVING_MPS = 0.2  # below this speed the course over ground is sent as unknown
+
+
+def _cm_u16(metres: float) -> int:
+    """Metres -> cm for a uint16 field, never the 65535 'unknown' value."""
+    return int(min(max(round(_f(metres, 655.34) * 100.0), 0), UNKNOWN_U16 - 1))
+
+
+def hil_gps(mav: Any, sol: NavSolution, cfg: OutputConfig, unix_time_s: float) -> Any:
+    """HIL_GPS (PX4: taken as a GNSS receiver when MAV_USEHILGPS is 1 and the sender has PX4's own sysid).
+    PX4 reads eph/epv as the 1-sigma horizontal/vertical accuracy in cm (EKF2_REQ_EPH / _EPV gate them), marks
+    vn/ve/vd valid whatever is sent (so they are ours: true north/east m/s, vd 0 on the ground) and stamps the
+    message on arrival. time_usec: UTC, us; alt: mm AMSL; cog: true course cdeg, unknown below MOVING_MPS; yaw:
+    our true heading when cfg.send_yaw (PX4's handler ignores it today)."""
+    cog = yaw_cdeg(sol.yaw_ned) % 36000 if abs(_f(sol.speed, 0.0)) >= MOVING_MPS else UNKNOWN_U16
+    vn, ve = (int(round(max(-32767.0, min(32767.0, _f(v, 0.0) * 100.0)))) for v in (sol.vn, sol.ve))
+    return mav.hil_gps_encode(
+        int(unix_time_s * 1e6) if math.isfinite(unix_time_s) and unix_time_s > 0 else 0, sol.fix_type,
+        _degE7(sol.lat), _degE7(sol.lon), int(round(_f(sol.alt, 0.0) * 1000.0)), _cm_u16(min(sol.sigma_h, 1000.0)),
+        _cm_u16(cfg.vertical_accuracy_m), _cm_u16(abs(_f(sol.speed, 0.0))), vn, ve, 0, cog, cfg.satellites_visible,
+        cfg.gps_id, yaw_cdeg(sol.yaw_ned) if cfg.send_yaw else 0)
 
 
 def global_position_sensor(mav: Any, sol: NavSolution, cfg: OutputConfig, target_system: int,

@@ -1,5 +1,5 @@
 """The output stage: one Localiser estimate -> the GPS-style messages the autopilot gets at the output rate
-(GPS_INPUT for ArduPilot, GLOBAL_POSITION_SENSOR or ODOMETRY for PX4; `output.messages` picks them).
+(GPS_INPUT for ArduPilot, HIL_GPS or ODOMETRY for PX4; `output.messages` picks them).
 
 Before encoding, the 1-sigma is grown when the IMU has gone quiet for longer than `output.stall_s` (the vehicle
 may be anywhere within speed x age, `health.stall_sigma`), and the health hysteresis (`health.Health`) decides
@@ -23,9 +23,10 @@ from taco_mav.link import encoders
 from taco_mav.link.decoders import AttitudeReading
 from taco_mav.link.health import Health, stall_sigma
 
-__all__ = ["OUTPUTS", "OutputStage"]
+__all__ = ["GNSS_OUTPUTS", "OUTPUTS", "OutputStage"]
 
-OUTPUTS = ("gps_input", "global_position_sensor", "odometry")
+OUTPUTS = ("gps_input", "hil_gps", "global_position_sensor", "odometry")
+GNSS_OUTPUTS = ("gps_input", "hil_gps")  # outputs the autopilot takes as a GPS instance (gps_id + 1)
 
 
 class OutputStage:
@@ -40,6 +41,8 @@ class OutputStage:
         self.compass_sigma_rad = profile.ukf.compass_sigma_rad
         self.health = Health(cfg.degrade_accuracy_m, cfg.recover_accuracy_m, cfg.stall_s)
         self._on_change = on_change
+        # a GPS-instance output (GPS_INPUT, HIL_GPS): instance gps_id + 1 echoes us and is never a receiver
+        self.writes_gps = any(m in GNSS_OUTPUTS for m in cfg.messages)
         self.last_hacc_m: float | None = None  # horizontal 1-sigma of the last solution sent, m (gcs.py: taco_hacc)
 
     def messages(self, est: Estimate, imu_age_s: float, origin: encoders.Origin, mav: Any, utc_s: float,
@@ -62,6 +65,8 @@ class OutputStage:
         for name in self.cfg.messages:
             if name == "gps_input":
                 out.append(encoders.gps_input(mav, sol, self.cfg, utc_s))
+            elif name == "hil_gps":
+                out.append(encoders.hil_gps(mav, sol, self.cfg, utc_s))
             elif name == "global_position_sensor":
                 t_ap = sol.t_autopilot if autopilot_now_s is None else autopilot_now_s
                 out.append(encoders.global_position_sensor(mav, sol, self.cfg, target_system, t_ap))
