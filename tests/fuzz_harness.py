@@ -31,9 +31,6 @@ from fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
 
 log = logging.getLogger(__name__)
 
-# NaN by the encoder's design: GLOBAL_POSITION_SENSOR.alt_ellipsoid "unknown" (see encoders.py); reported apart.
-DESIGNED_NAN = frozenset({"GLOBAL_POSITION_SENSOR.alt_ellipsoid"})
-
 
 @dataclass(frozen=True)
 class FuzzOptions:
@@ -80,7 +77,6 @@ class _Outputs:
         self.parser.robust_parsing = True
         self.by_type: Counter[str] = Counter()
         self.nonfinite: Counter[str] = Counter()
-        self.designed_nan: Counter[str] = Counter()
         self.out_of_range: Counter[str] = Counter()
         self.fix_types: Counter[int] = Counter()
         self.timesync_requests: list[Any] = []
@@ -93,9 +89,8 @@ class _Outputs:
                 values = getattr(msg, name)
                 for v in values if isinstance(values, list) else [values]:
                     if isinstance(v, float) and not math.isfinite(v):
-                        key = f"{kind}.{name}"
-                        (self.designed_nan if key in DESIGNED_NAN else self.nonfinite)[key] += 1
-            if kind in ("GPS_INPUT", "GLOBAL_POSITION_SENSOR"):
+                        self.nonfinite[f"{kind}.{name}"] += 1
+            if kind in ("GPS_INPUT", "HIL_GPS"):
                 if not (abs(msg.lat) <= 900_000_000 and abs(msg.lon) <= 1_800_000_000):
                     self.out_of_range[f"{kind}.latlon"] += 1
             if kind == "GPS_INPUT":
@@ -110,7 +105,7 @@ def fuzz_profile(imu_kind: str, output_rate_hz: float) -> Profile:
     """The profile of one episode: emulator matcher (SIMSTATE truth), all three outputs, link.imu_message
     `imu_kind` (a message name, or "auto")."""
     return profile_from_dict({"matcher": "emulator", "link": {"imu_message": imu_kind},
-                              "output": {"messages": ["gps_input", "global_position_sensor", "odometry"],
+                              "output": {"messages": ["gps_input", "hil_gps", "odometry"],
                                          "rate_hz": output_rate_hz}})
 
 
@@ -254,7 +249,7 @@ def run_episode(imu_kind: str, frames: int, seed: int, opt: FuzzOptions) -> dict
         "gps_input_during_fuzz": ep.outputs.by_type["GPS_INPUT"] - outputs_before,
         "gps_input_fix3_during_fuzz": ep.outputs.fix_types[3] - fix3_before,
         "fix_types": {str(k): v for k, v in ep.outputs.fix_types.items()},
-        "nonfinite_output_fields": dict(ep.outputs.nonfinite), "designed_nan_fields": dict(ep.outputs.designed_nan),
+        "nonfinite_output_fields": dict(ep.outputs.nonfinite),
         "out_of_range_output_fields": dict(ep.outputs.out_of_range), "sender_stalls": ep.stalls,
         "summary": summary,
     }
@@ -289,7 +284,7 @@ def run_fuzz(options: FuzzOptions = FuzzOptions(), progress: bool = False) -> di
         root.setLevel(level)
     rejected: Counter[str] = Counter()
     totals: dict[str, Counter[str]] = {k: Counter() for k in ("mutations", "outputs", "nonfinite_output_fields",
-                                                               "designed_nan_fields", "out_of_range_output_fields")}
+                                                               "out_of_range_output_fields")}
     for e in episodes:
         rejected.update(e["summary"]["rejected_inputs"])
         for k, c in totals.items():

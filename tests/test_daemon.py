@@ -25,7 +25,7 @@ DRIVE_S = 5.0
 
 def _profile() -> Profile:
     return profile_from_dict({"matcher": "emulator",
-                              "output": {"messages": ["gps_input", "global_position_sensor", "odometry"]}})
+                              "output": {"messages": ["gps_input", "hil_gps", "odometry"]}})
 
 
 @pytest.fixture(scope="module")
@@ -100,9 +100,9 @@ def test_gps_input_fields_and_position(drive) -> None:
 
 def test_other_outputs(drive) -> None:
     _, ap, _, _ = drive
-    gps = ap.of_type("GLOBAL_POSITION_SENSOR")[-1].msg
+    gps = ap.of_type("HIL_GPS")[-1].msg
     odo = ap.of_type("ODOMETRY")[-1].msg
-    assert gps.flags == 0 and 0 < gps.eph < 10.0 and gps.id == 0
+    assert gps.fix_type == 3 and 0 < gps.eph < 1000 and gps.id == 0  # eph: cm
     assert odo.frame_id == 1 and odo.child_frame_id == 12
     dist = math.hypot(odo.x, odo.y)
     assert 15.0 < dist < 30.0  # ~5 m/s for ~4-5 s after the origin

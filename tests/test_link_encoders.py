@@ -134,19 +134,6 @@ def test_hil_gps_at_rest_degraded_and_never_nan() -> None:
     assert msg.lat == int(round(49.0 * 1e7)) and msg.lon == int(round(8.4 * 1e7))
 
 
-def test_global_position_sensor() -> None:
-    sol = encoders.solution(est((3.0, 4.0), t=12.5), ORIGIN, CFG, healthy=True)
-    msg = roundtrip(lambda mav: encoders.global_position_sensor(mav, sol, CFG, 1, now_autopilot=12.75))
-    lat, lon = ORIGIN.latlon(np.array([3.0, 4.0]))
-    assert msg.lat == int(round(lat * 1e7)) and msg.lon == int(round(lon * 1e7))
-    assert msg.time_usec == 12_500_000 and msg.processing_time == 250_000
-    assert msg.eph == pytest.approx(2.0) and msg.epv == pytest.approx(CFG.vertical_accuracy_m)
-    assert msg.source == encoders.GLOBAL_POSITION_SRC_ESTIMATOR and msg.flags == 0
-    assert math.isnan(msg.alt_ellipsoid) and msg.alt == pytest.approx(115.0)
-    sol_bad = encoders.solution(est(), ORIGIN, CFG, healthy=False)
-    assert roundtrip(lambda mav: encoders.global_position_sensor(mav, sol_bad, CFG, 1, 0.0)).flags == 1
-
-
 def test_odometry_local_ned_and_covariance() -> None:
     cov = np.array([[1.0, 0.5], [0.5, 4.0]])  # ENU: var_e 1, var_n 4, cov 0.5
     sol = encoders.solution(est((10.0, 20.0), math.pi / 2 + ORIGIN.convergence, 2.0, cov, t=3.0), ORIGIN, CFG, True)
@@ -167,7 +154,7 @@ def test_statustext_truncated() -> None:
 
 @pytest.mark.parametrize("heading_deg", [0.0, 90.0, 210.0])
 def test_outputs_carry_the_antenna_point(heading_deg: float) -> None:
-    """output.antenna_frd_m: GPS_INPUT, GLOBAL_POSITION_SENSOR and ODOMETRY all report the antenna point, the
+    """output.antenna_frd_m: GPS_INPUT, HIL_GPS and ODOMETRY all report the antenna point, the
     estimate (the reference point) plus the antenna's body offset rotated by the heading; altitude - z."""
     ant = OutputConfig(antenna_frd_m=(0.6, 0.3, -0.5))  # 0.6 m ahead, 0.3 m right, 0.5 m above
     th = math.radians(heading_deg)
@@ -183,8 +170,8 @@ def test_outputs_carry_the_antenna_point(heading_deg: float) -> None:
     moved = ORIGIN.projector.to_utm(gps.lat * 1e-7, gps.lon * 1e-7)
     ref = ORIGIN.projector.to_utm(gps_ref.lat * 1e-7, gps_ref.lon * 1e-7)
     assert math.dist(moved, ref) == pytest.approx(math.hypot(0.6, 0.3), abs=0.02)  # degE7 ~ 1 cm
-    gps_sensor = roundtrip(lambda mav: encoders.global_position_sensor(mav, sol, ant, 1, 10.0))
-    assert (gps_sensor.lat, gps_sensor.lon) == (gps.lat, gps.lon) and gps_sensor.alt == pytest.approx(115.5)
+    hil = roundtrip(lambda mav: encoders.hil_gps(mav, sol, ant, 1.7e9))
+    assert (hil.lat, hil.lon) == (gps.lat, gps.lon) and hil.alt == 115_500
     odo = roundtrip(lambda mav: encoders.odometry(mav, sol, ant, 0.0, 0.0, (0.0, 0.0, 0.0), 0.05, 0))
     assert (odo.x, odo.y) == pytest.approx((north, east), abs=1e-3)
     # a non-finite estimate is still the origin, unmoved

@@ -24,7 +24,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "synthetic", "synthetic_3d")
+SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic", "synthetic_3d")
+PX4_PARAMS = ("px4_rover_solo", "px4_rover_handover")
 
 pytestmark = pytest.mark.slow
 
@@ -76,6 +77,8 @@ def test_wheel_ships_profiles_and_no_test_tooling(wheel: Path) -> None:
     names = zipfile.ZipFile(wheel).namelist()
     for name in SHIPPED:
         assert f"taco_mav/vehicle_profiles/{name}.yaml" in names
+    for name in PX4_PARAMS:  # the PX4 parameter files a user loads in QGroundControl, beside the profiles
+        assert f"taco_mav/vehicle_profiles/{name}.params" in names
     assert not [n for n in names if n.startswith("tests/") or "/fuzz" in n], "test tooling in the wheel"
 
 
@@ -159,6 +162,8 @@ def test_sdist_ships_profiles(source: Path, tmp_path: Path) -> None:
     names = tarfile.open(sdist).getnames()
     for name in SHIPPED:
         assert any(n.endswith(f"/taco_mav/vehicle_profiles/{name}.yaml") for n in names), name
+    for name in PX4_PARAMS:
+        assert any(n.endswith(f"/taco_mav/vehicle_profiles/{name}.params") for n in names), name
 
 
 def test_own_profiles_folder_is_looked_up_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -29,7 +29,7 @@ from fuzz_frames import MUTATIONS  # noqa: E402
 from fuzz_harness import FuzzOptions, run_fuzz  # noqa: E402
 
 HEADLINE = ("fuzz_frames", "datagrams_sent", "datagrams_read", "wall_s", "crashes", "escaped_exceptions",
-            "handler_errors", "logged_exceptions", "nonfinite_output_fields", "designed_nan_fields",
+            "handler_errors", "logged_exceptions", "nonfinite_output_fields",
             "out_of_range_output_fields", "all_anchored", "gps_input_during_fuzz", "gps_input_fix3_during_fuzz",
             "imu_sources", "reboots", "rejected_by_reason")
 

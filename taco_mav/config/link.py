@@ -36,9 +36,9 @@ class LinkConfig:
 
 @dataclass(frozen=True)
 class OutputConfig:
-    """What the daemon sends back (GPS_INPUT for ArduPilot; GLOBAL_POSITION_SENSOR or ODOMETRY for PX4)."""
+    """What the daemon sends back (GPS_INPUT for ArduPilot; HIL_GPS or ODOMETRY for PX4)."""
 
-    # Any of "gps_input", "global_position_sensor", "odometry".
+    # Any of "gps_input", "hil_gps", "odometry".
     messages: tuple[str, ...] = ("gps_input",)
     rate_hz: float = field(default=5.0, metadata=bounded(1.0, 20.0))  # steady, independent of fixes
     gps_id: int = field(default=0, metadata=bounded(0, 9))  # zero-based GPS instance (GPS1 = 0)
@@ -63,12 +63,10 @@ class OutputConfig:
     send_yaw: bool = True
     leap_seconds: int = field(default=18, metadata=bounded(0, 60))  # GPS - UTC for time_week/time_week_ms
     statustext_interval_s: float = field(default=5.0, metadata=bounded(0.0))  # rate limit of fix STATUSTEXTs
-    # GLOBAL_POSITION_SENSOR target (PX4): 0 = the autopilot's sysid / broadcast component.
-    gps_sensor_id: int = field(default=0, metadata=bounded(0, 255))
     # The point whose position the autopilot expects, relative to the vehicle reference point (the estimate's
     # point; camera.position_frd_m is measured from the same one), body FRD metres [x forward, y right, z down].
     # ArduPilot GPS_INPUT: the antenna of instance gps_id + 1, i.e. copy GPS{n}_POS_X/Y/Z (GPS_POS{n}_X/Y/Z before
-    # 4.6; the daemon reads them and warns on a difference over 5 cm). PX4: see docs/px4.md (GLOBAL_POSITION_SENSOR
-    # takes the body origin itself: leave zero; ODOMETRY: EKF2_EV_POS_X/Y/Z). Sent position = estimate +
+    # 4.6; the daemon reads them and warns on a difference over 5 cm). PX4 HIL_GPS: copy EKF2_GPS_POS_X/Y/Z;
+    # ODOMETRY: EKF2_EV_POS_X/Y/Z (docs/px4.md). Sent position = estimate +
     # R(heading) [x, -y] (forward, left); altitude = origin altitude - z.
     antenna_frd_m: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), metadata=bounded(-20.0, 20.0))

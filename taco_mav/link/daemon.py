@@ -36,6 +36,7 @@ from taco_mav.link.daemon_inputs import DaemonInputs
 from taco_mav.link.daemon_origin import DaemonOrigin
 from taco_mav.link.daemon_outputs import DaemonOutputs
 from taco_mav.link.decoders import IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders, ImuReading
+from taco_mav.link.drive import DriveCommand
 from taco_mav.link.eventlog import EventLog
 from taco_mav.link.fixes import FixPipeline
 from taco_mav.link.gcs import GCS_HEALTH_HZ, GcsHealth
@@ -94,7 +95,7 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
         self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
         self.sources = InputSources(profile.link.imu_message)  # IMU and attitude streams: first valid, fallback
         self.last_imu: ImuReading | None = None
-        self._armed: bool | None = None  # from the autopilot's HEARTBEAT
+        self.drive = DriveCommand()  # armed / driving, from the autopilot's HEARTBEAT and VFR_HUD
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self._last_imu_clock = -math.inf
         self._last_status: dict[str, float] = {}

@@ -16,17 +16,15 @@ from taco_mav.link.anchor import OriginCandidate
 from taco_mav.link.decoders import GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, POSE_MESSAGES
 from taco_mav.link.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S
 from taco_mav.link.imu_timeline import Verdict
-from taco_mav.link.mavconst import (MAV_AUTOPILOT_INVALID, MAV_MODE_FLAG_SAFETY_ARMED, MAV_TYPE_GCS,
-                                    MAV_TYPE_ONBOARD_CONTROLLER, SEV_ERROR, SEV_WARNING)
+from taco_mav.link.mavconst import (MAV_AUTOPILOT_INVALID, MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER, SEV_ERROR,
+                                    SEV_WARNING)
 
 if TYPE_CHECKING:
     from taco_mav.link.daemon import Daemon
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DRIVE_THROTTLE_MIN_PCT", "DaemonInputs"]
-
-DRIVE_THROTTLE_MIN_PCT = 3  # VFR_HUD throttle at or above this (armed) means the autopilot drives
+__all__ = ["DaemonInputs"]
 
 
 class DaemonInputs:
@@ -56,7 +54,7 @@ class DaemonInputs:
                     self._request_streams(msg.autopilot)
                 if (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component):
                     self._heard()
-                    self._armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+                    self.drive.on_heartbeat(msg)
             return
         if not link.target_system:
             self.decoders.reject(kind, "before_autopilot")
@@ -148,15 +146,16 @@ class DaemonInputs:
             self._status(SEV_WARNING, text, key=None)
 
     def _on_vfr_hud(self: Daemon, msg: Any) -> None:
-        """The autopilot's throttle output (%): armed with throttle means it drives, which vetoes taco+'s
+        """The autopilot's throttle output (%): whether it drives (`drive.DriveCommand`) vetoes taco+'s
         zero-velocity updates (a smooth cruise looks still to the IMU, issue 19)."""
         throttle = getattr(msg, "throttle", None)
         if not isinstance(throttle, int) or not -100 <= throttle <= 100:
             self.decoders.reject("VFR_HUD", "range")
             return
+        driving = self.drive.driving(throttle)
         set_drive = getattr(self.loc, "set_drive_command", None)
-        if set_drive is not None and self.last_imu is not None and self._armed is not None:
-            set_drive(self.last_imu.t, self._armed and abs(throttle) >= DRIVE_THROTTLE_MIN_PCT)
+        if set_drive is not None and self.last_imu is not None and driving is not None:
+            set_drive(self.last_imu.t, driving)
 
     def _on_sim_pose(self: Daemon, msg: Any) -> None:
         """A simulator's true pose (SIMSTATE, HIL_STATE_QUATERNION): to the fix pipeline (world camera, emulator

@@ -32,8 +32,8 @@ class DaemonOutputs:
             return
         gyro = self.last_imu.gyro_frd if self.last_imu else (0.0, 0.0, 0.0)
         for msg in self.output.messages(self.loc.estimate(), now - self._last_imu_clock, self.origin, self.link.mav,
-                                        self.wall_clock(), self.clockmap.now_autopilot(), self.link.target_system,
-                                        self.attitude, gyro, self.stats.reboots):
+                                        self.wall_clock(), self.clockmap.offset, self.attitude, gyro,
+                                        self.stats.reboots):
             self.link.send(msg)
         self.stats.output_times.append(now)
 

@@ -1,4 +1,4 @@
-"""Output encoders: the filter's estimate -> GPS_INPUT, HIL_GPS, GLOBAL_POSITION_SENSOR, ODOMETRY, STATUSTEXT.
+"""Output encoders: the filter's estimate -> GPS_INPUT, HIL_GPS, ODOMETRY, STATUSTEXT.
 
 Frames and units: the estimate is ENU metres relative to the origin on the UTM grid, heading theta on the grid
 (ENU rad). `Origin` maps it to WGS84 (lat/lon degE7 on the wire) and turns grid headings into true ones
@@ -37,8 +37,6 @@ GPS_FIX_3D = _m.GPS_FIX_TYPE_3D_FIX  # 3
 # Fields we do not provide: vertical velocity, vertical accuracy, VDOP.
 GPS_INPUT_IGNORE = (_m.GPS_INPUT_IGNORE_FLAG_VEL_VERT | _m.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
                     | _m.GPS_INPUT_IGNORE_FLAG_VDOP)
-GLOBAL_POSITION_SRC_ESTIMATOR = 6  # GLOBAL_POSITION_SRC (common.xml; not exported as a constant by every pymavlink)
-GLOBAL_POSITION_UNHEALTHY = 1
 MAV_FRAME_LOCAL_NED = _m.MAV_FRAME_LOCAL_NED
 MAV_FRAME_BODY_FRD = _m.MAV_FRAME_BODY_FRD
 MAV_ESTIMATOR_TYPE_VIO = _m.MAV_ESTIMATOR_TYPE_VIO
@@ -107,7 +105,7 @@ def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) ->
 
     The estimate is the vehicle reference point; the solution is the point the autopilot expects,
     cfg.antenna_frd_m from it (`antenna_point`; altitude = origin altitude - z): the one place where every output
-    (GPS_INPUT, GLOBAL_POSITION_SENSOR, ODOMETRY) gets its position."""
+    (GPS_INPUT, HIL_GPS, ODOMETRY) gets its position."""
     sigma = est.sigma_h if np.all(np.isfinite(est.cov_xy)) else float("nan")
     xy = np.asarray(est.xy, dtype=float)
     ok = bool(np.all(np.isfinite(xy)) and math.isfinite(sigma) and math.isfinite(est.theta) and math.isfinite(est.speed))
@@ -186,18 +184,6 @@ def hil_gps(mav: Any, sol: NavSolution, cfg: OutputConfig, unix_time_s: float) -
         cfg.gps_id, yaw_cdeg(sol.yaw_ned) if cfg.send_yaw else 0)
 
 
-def global_position_sensor(mav: Any, sol: NavSolution, cfg: OutputConfig, target_system: int,
-                           now_autopilot: float) -> Any:
-    """GLOBAL_POSITION_SENSOR (PX4 aux global position). time_usec: estimate time on the autopilot clock;
-    processing_time: its age now, usec. alt_ellipsoid is unknown (NaN is the field's documented invalid value)."""
-    age = max(0.0, _f(now_autopilot - sol.t_autopilot, 0.0))
-    flags = 0 if sol.fix_type == GPS_FIX_3D else GLOBAL_POSITION_UNHEALTHY
-    return mav.global_position_sensor_encode(
-        target_system, 0, cfg.gps_sensor_id, int(max(sol.t_autopilot, 0.0) * 1e6), int(min(age * 1e6, 2**32 - 1)),
-        GLOBAL_POSITION_SRC_ESTIMATOR, flags, _degE7(sol.lat), _degE7(sol.lon), float("nan"), _f(sol.alt, 0.0),
-        min(_f(sol.sigma_h, 1000.0), 1000.0), cfg.vertical_accuracy_m)
-
-
 def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
@@ -207,8 +193,10 @@ def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
 
 
 def odometry(mav: Any, sol: NavSolution, cfg: OutputConfig, roll: float, pitch: float, gyro_frd: tuple[float, float, float],
-             yaw_sigma_rad: float, reset_counter: int) -> Any:
-    """ODOMETRY: position in a local NED frame about the origin (z = 0: flat ground), attitude from the latest
+             yaw_sigma_rad: float, reset_counter: int, t_sender: float | None = None) -> Any:
+    """ODOMETRY: time_usec the estimate's time on the sender's clock, s (`t_sender`; default the autopilot clock:
+    PX4 maps a companion's stamps through TIMESYNC, ArduPilot learns any constant offset), position in a local
+    NED frame about the origin (z = 0: flat ground), attitude from the latest
     ATTITUDE roll/pitch and our yaw, velocity in body FRD (forward speed), rates from the IMU. Covariances are
     the 21-entry upper triangles (x, y, z, roll, pitch, yaw); z takes the horizontal variance (flat-ground
     assumption), roll/pitch 0.01 rad^2."""
@@ -224,7 +212,7 @@ def odometry(mav: Any, sol: NavSolution, cfg: OutputConfig, roll: float, pitch: 
     quality = -1 if sol.fix_type != GPS_FIX_3D else max(1, min(100, int(round(100.0 * (1.0 - sol.sigma_h / cfg.degrade_accuracy_m)))))
     g = [_f(v, 0.0) for v in gyro_frd]
     return mav.odometry_encode(
-        int(max(sol.t_autopilot, 0.0) * 1e6), MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, _f(sol.x_n, 0.0), _f(sol.y_e, 0.0),
+        int(max(_f(sol.t_autopilot if t_sender is None else t_sender, 0.0), 0.0) * 1e6), MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, _f(sol.x_n, 0.0), _f(sol.y_e, 0.0),
         0.0, q, _f(sol.speed, 0.0), 0.0, 0.0, g[0], g[1], g[2], pose, vel, reset_counter & 0xFF, MAV_ESTIMATOR_TYPE_VIO,
         quality)
 

@@ -25,7 +25,7 @@ from taco_mav.link.health import Health, stall_sigma
 
 __all__ = ["GNSS_OUTPUTS", "OUTPUTS", "OutputStage"]
 
-OUTPUTS = ("gps_input", "hil_gps", "global_position_sensor", "odometry")
+OUTPUTS = ("gps_input", "hil_gps", "odometry")
 GNSS_OUTPUTS = ("gps_input", "hil_gps")  # outputs the autopilot takes as a GPS instance (gps_id + 1)
 
 
@@ -46,11 +46,12 @@ class OutputStage:
         self.last_hacc_m: float | None = None  # horizontal 1-sigma of the last solution sent, m (gcs.py: taco_hacc)
 
     def messages(self, est: Estimate, imu_age_s: float, origin: encoders.Origin, mav: Any, utc_s: float,
-                 autopilot_now_s: float | None, target_system: int, attitude: AttitudeReading | None,
+                 clock_offset_s: float | None, attitude: AttitudeReading | None,
                  gyro_frd: tuple[float, float, float], reboots: int) -> list[Any]:
         """The messages for `est`. imu_age_s: companion seconds since the last IMU sample; utc_s: UTC unix
-        seconds (GPS week/ms); autopilot_now_s: the autopilot clock now (None: not mapped yet, the estimate's
-        time is used); attitude and gyro_frd (rad/s, body FRD) fill ODOMETRY; reboots: its reset counter."""
+        seconds (GPS week/ms); clock_offset_s: autopilot minus companion clock, s (ClockMap.offset; None while
+        unknown): ODOMETRY is stamped on the companion clock, the one our TIMESYNC answers carry, which PX4 maps
+        onto its own; attitude and gyro_frd (rad/s, body FRD) fill ODOMETRY; reboots: its reset counter."""
         finite = bool(np.all(np.isfinite(est.cov_xy)) and np.all(np.isfinite(est.xy)))
         sigma = est.sigma_h if finite else float("nan")  # a non-finite estimate is reported as such
         if imu_age_s > self.cfg.stall_s and math.isfinite(sigma):
@@ -67,11 +68,9 @@ class OutputStage:
                 out.append(encoders.gps_input(mav, sol, self.cfg, utc_s))
             elif name == "hil_gps":
                 out.append(encoders.hil_gps(mav, sol, self.cfg, utc_s))
-            elif name == "global_position_sensor":
-                t_ap = sol.t_autopilot if autopilot_now_s is None else autopilot_now_s
-                out.append(encoders.global_position_sensor(mav, sol, self.cfg, target_system, t_ap))
             else:
                 a = attitude
+                t_companion = sol.t_autopilot - clock_offset_s if clock_offset_s is not None else sol.t_autopilot
                 out.append(encoders.odometry(mav, sol, self.cfg, a.roll if a else 0.0, a.pitch if a else 0.0,
-                                             gyro_frd, self.compass_sigma_rad, reboots))
+                                             gyro_frd, self.compass_sigma_rad, reboots, t_companion))
         return out
