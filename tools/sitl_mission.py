@@ -27,6 +27,7 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -93,23 +94,33 @@ def offset(lat: float, lon: float, east: float, north: float) -> tuple[float, fl
 
 
 class Gcs:
-    """The harness's own MAVLink link to SITL (SERIAL0), as a ground station."""
+    """The harness's own MAVLink link to SITL (SERIAL0), as a ground station. The generic part (commands,
+    parameters, the receive log, mission upload) serves tools/px4_mission.py too, whose subclass connects over UDP.
+    `heartbeat_s`: send a GCS HEARTBEAT this often while pumping (None: never; ArduPilot talks to anyone on TCP)."""
+
+    heartbeat_s: float | None = None
 
     def __init__(self, port: int) -> None:
         deadline = time.time() + 60
         while True:
             try:
-                self.m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=250, source_component=190,
-                                                    autoreconnect=False)
+                m = mavutil.mavlink_connection(f"tcp:127.0.0.1:{port}", source_system=250, source_component=190,
+                                               autoreconnect=False)
                 break
             except OSError:
                 if time.time() > deadline:
                     raise
                 time.sleep(0.5)
-        self.m.wait_heartbeat(timeout=60)
+        m.wait_heartbeat(timeout=60)
+        self._attach(m)
+
+    def _attach(self, m: Any) -> None:
+        """Use connection `m`, whose autopilot heartbeat has been seen (m.target_system set)."""
+        self.m = m
         self.target = (self.m.target_system, M.MAV_COMP_ID_AUTOPILOT1)
         self.log: list[tuple[float, Any]] = []
         self.texts: list[tuple[float, int, str]] = []
+        self._heartbeat_at = 0.0
 
     def send_cmd(self, cmd: int, *p: float) -> None:
         args = list(p) + [0.0] * (7 - len(p))
@@ -118,13 +129,29 @@ class Gcs:
     def interval(self, msg_id: int, hz: float) -> None:
         self.send_cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
 
-    def set_param(self, name: str, value: float) -> None:
+    def heartbeat(self) -> None:
+        self.m.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        self._heartbeat_at = time.time()
+
+    def set_param(self, name: str, value: float, param_type: int = M.MAV_PARAM_TYPE_REAL32) -> None:
+        """PARAM_SET until PARAM_VALUE echoes `value`. REAL32 sends the value as a float (ArduPilot casts it);
+        INT32 packs the integer's bytes into the float (PX4's bytewise encoding) and reads the answer back the
+        same way."""
+        if param_type == M.MAV_PARAM_TYPE_INT32:
+            wire = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+        else:
+            wire = float(value)
         for _ in range(5):
-            self.m.mav.param_set_send(*self.target, name.encode(), float(value), M.MAV_PARAM_TYPE_REAL32)
+            self.m.mav.param_set_send(*self.target, name.encode(), wire, param_type)
             got = self.m.recv_match(type="PARAM_VALUE", blocking=True, timeout=2)
             while got is not None and got.param_id != name:
                 got = self.m.recv_match(type="PARAM_VALUE", blocking=True, timeout=2)
-            if got is not None and abs(got.param_value - value) < 1e-3 * max(1.0, abs(value)):
+            if got is None:
+                continue
+            now = got.param_value
+            if param_type == M.MAV_PARAM_TYPE_INT32 and got.param_type == M.MAV_PARAM_TYPE_INT32:
+                now = struct.unpack("<i", struct.pack("<f", got.param_value))[0]
+            if abs(now - value) < 1e-3 * max(1.0, abs(value)):
                 return
         raise RuntimeError(f"SITL did not take {name}={value}")
 
@@ -133,7 +160,12 @@ class Gcs:
         out = []
         end = time.time() + seconds
         while time.time() < end:
-            msg = self.m.recv_match(blocking=True, timeout=max(0.0, end - time.time()))
+            if self.heartbeat_s is not None and time.time() - self._heartbeat_at >= self.heartbeat_s:
+                self.heartbeat()
+            wait = end - time.time()
+            if self.heartbeat_s is not None:
+                wait = min(wait, self.heartbeat_s)
+            msg = self.m.recv_match(blocking=True, timeout=max(0.0, wait))
             if msg is None:
                 continue
             now = time.time()
@@ -143,24 +175,35 @@ class Gcs:
             out.append(msg)
         return out
 
-    def upload_square(self, home: tuple[float, float, float, float], side: float, laps: int) -> int:
+    def write_tlog(self, path: Path) -> None:
+        """Everything received, as a tlog (8-byte big-endian UNIX microseconds before each message), for
+        mavlogdump.py / MAVExplorer."""
+        with open(path, "wb") as f:
+            for t, msg in self.log:
+                f.write(struct.pack(">Q", int(t * 1e6)) + msg.get_msgbuf())
+
+    def upload_square(self, home: tuple[float, float, float, float], side: float, laps: int, home_item: bool = True,
+                      frame: int = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, alt: float = 0.0) -> int:
         """`_upload_square`, retried: just after boot ArduPilot answers NO_SPACE until its storage is up."""
         for attempt in range(20):
             try:
-                return self._upload_square(home, side, laps)
+                return self._upload_square(home, side, laps, home_item, frame, alt)
             except RuntimeError as e:
                 if attempt == 19 or "type : 4" not in str(e):
                     raise
                 self.pump(2.0)
         raise AssertionError("unreachable")
 
-    def _upload_square(self, home: tuple[float, float, float, float], side: float, laps: int) -> int:
+    def _upload_square(self, home: tuple[float, float, float, float], side: float, laps: int, home_item: bool = True,
+                       frame: int = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, alt: float = 0.0) -> int:
         """A square of `side` metres (N, E, S, W legs) from home, `laps` times, then HOLD at home; returns the
-        number of mission items (item 0 is home, as ArduPilot expects)."""
-        lat0, lon0, alt = home[0], home[1], 0.0
+        number of mission items. home_item: item 0 is home, as ArduPilot expects (PX4: item 0 is the first
+        waypoint). frame and alt (metres in that frame) go on every item."""
+        lat0, lon0 = home[0], home[1]
         corners = [(0.0, side), (side, side), (side, 0.0), (0.0, 0.0)]
         wps = [offset(lat0, lon0, e, n) for _ in range(laps) for e, n in corners]
-        items = [(lat0, lon0, M.MAV_CMD_NAV_WAYPOINT)] + [(la, lo, M.MAV_CMD_NAV_WAYPOINT) for la, lo in wps]
+        items = ([(lat0, lon0, M.MAV_CMD_NAV_WAYPOINT)] if home_item else []) + \
+            [(la, lo, M.MAV_CMD_NAV_WAYPOINT) for la, lo in wps]
         self.m.mav.mission_clear_all_send(*self.target)
         time.sleep(0.5)
         self.m.mav.mission_count_send(*self.target, len(items), 0)
@@ -178,7 +221,7 @@ class Gcs:
                     return len(items)
                 continue  # the answer to the clear
             la, lo, cmd = items[msg.seq]
-            self.m.mav.mission_item_int_send(*self.target, msg.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, cmd,
+            self.m.mav.mission_item_int_send(*self.target, msg.seq, frame, cmd,
                                              0, 1, 0, 0, 0, 0, int(la * 1e7), int(lo * 1e7), alt, 0)
             sent.add(msg.seq)
         raise RuntimeError("mission upload timed out")
@@ -242,15 +285,15 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
                         (M.MAVLINK_MSG_ID_VFR_HUD, 5)):
             gcs.interval(mid, hz)
         if spec.setup == "solo":  # no GNSS at all: the ground station sets the EKF origin, as a user would
-            _set_ekf_origin(gcs, spec.home)
+            set_ekf_origin(gcs, spec.home)
         n_items = gcs.upload_square(spec.home, spec.side_m, spec.laps)
         t0 = time.time()
-        ekf_ok_at = _wait_ekf(gcs, spec.ekf_wait_s)
+        ekf_ok_at = wait_ekf(gcs, spec.ekf_wait_s)
         figures: dict[str, Any] = {"ekf_position_after_s": None if ekf_ok_at is None else ekf_ok_at - t0}
         if ekf_ok_at is None:
             figures["verdict"] = "ekf_never_ready"
             return _finish(out, gcs, spec, figures, None)
-        armed_at = _arm(gcs)
+        armed_at = arm(gcs)
         gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_AUTO)
         auto_t = time.time()
         figures["armed_after_s"] = armed_at - t0
@@ -265,7 +308,7 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
             if spec.setup == "handover" and gnss_off_t is None and time.time() - auto_t >= spec.gnss_off_after_s:
                 gcs.set_param("SIM_GPS1_ENABLE", 0)
                 gnss_off_t = time.time()
-            if _runaway(gcs, spec):
+            if runaway(gcs, spec):
                 figures["verdict"] = "runaway_stopped"
                 break
         gcs.pump(2.0)
@@ -274,16 +317,23 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         figures["gnss_off_after_auto_s"] = None if gnss_off_t is None else gnss_off_t - auto_t
         return _finish(out, gcs, spec, figures, auto_t)
     finally:
-        for proc in (daemon, sitl):
-            if proc is not None and proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGINT if proc is daemon else signal.SIGTERM)
-                try:
-                    proc.wait(15)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGKILL)
+        stop_group(daemon, signal.SIGINT)
+        stop_group(sitl, signal.SIGTERM)
 
 
-def _set_ekf_origin(gcs: Gcs, home: tuple[float, float, float, float], limit_s: float = 90.0) -> float:
+def stop_group(proc: subprocess.Popen | None, first: int, wait_s: float = 15.0) -> None:
+    """End a process started with start_new_session=True and everything in its group: `first` (SIGINT for the
+    daemon, which then closes its logs; SIGTERM for an autopilot), SIGKILL after wait_s."""
+    if proc is not None and proc.poll() is None:
+        os.killpg(proc.pid, first)
+        try:
+            proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(5)
+
+
+def set_ekf_origin(gcs: Gcs, home: tuple[float, float, float, float], limit_s: float = 90.0) -> float:
     """SET_GPS_GLOBAL_ORIGIN every 2 s until the autopilot reports GPS_GLOBAL_ORIGIN (its EKF takes it only
     once it runs); returns the wall seconds it took."""
     t0 = time.time()
@@ -296,20 +346,28 @@ def _set_ekf_origin(gcs: Gcs, home: tuple[float, float, float, float], limit_s: 
     raise RuntimeError("the autopilot never took the EKF origin (SET_GPS_GLOBAL_ORIGIN)")
 
 
-def _wait_ekf(gcs: Gcs, limit_s: float) -> float | None:
-    """Wall time at which the EKF reports an absolute horizontal position (EKF_STATUS_REPORT flags) and
-    GLOBAL_POSITION_INT is non-zero, or None after limit_s."""
+def wait_ekf(gcs: Gcs, limit_s: float, status_kind: str = "EKF_STATUS_REPORT", need_global: bool = False,
+             refuse: int = M.EKF_CONST_POS_MODE, settle_s: float = 5.0) -> float | None:
+    """Wall time at which the EKF reports an absolute horizontal position and none of the `refuse` flags
+    (flags of `status_kind`: ArduPilot's EKF_STATUS_REPORT and PX4's ESTIMATOR_STATUS use the same bits; PX4
+    sets CONST_POS_MODE whenever the vehicle is at rest, so it passes refuse=0), then settle_s of settling; with
+    need_global, the latest GLOBAL_POSITION_INT must also be non-zero. None after limit_s."""
     end = time.time() + limit_s
+    have_global = not need_global
     while time.time() < end:
         for msg in gcs.pump(0.5):
-            if msg.get_type() == "EKF_STATUS_REPORT" and msg.flags & M.EKF_POS_HORIZ_ABS and \
-                    not msg.flags & M.EKF_CONST_POS_MODE:
-                gcs.pump(5.0)  # settle
+            if msg.get_type() == "GLOBAL_POSITION_INT" and need_global:
+                have_global = msg.lat != 0 or msg.lon != 0
+            if msg.get_type() == status_kind and msg.flags & M.EKF_POS_HORIZ_ABS and \
+                    not msg.flags & refuse and have_global:
+                gcs.pump(settle_s)
                 return time.time()
     return None
 
 
-def _arm(gcs: Gcs) -> float:
+def arm(gcs: Gcs) -> float:
+    """MAV_CMD_COMPONENT_ARM_DISARM once a second until the autopilot's HEARTBEAT says armed (30 tries);
+    returns the wall time, or raises with the autopilot's last STATUSTEXTs."""
     for _ in range(30):
         gcs.send_cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         for msg in gcs.pump(1.0):
@@ -319,13 +377,15 @@ def _arm(gcs: Gcs) -> float:
     raise RuntimeError("SITL refused to arm: " + "; ".join(t for _, _, t in gcs.texts[-5:]))
 
 
-def _runaway(gcs: Gcs, spec: MissionSpec) -> bool:
-    """Truth more than 3 side lengths from home: stop early (HOLD), the run has failed anyway."""
+def runaway(gcs: Gcs, spec: Any, truth_kind: str = "SIMSTATE", truth_lon: str = "lng",
+            hold: tuple[float, ...] = (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_HOLD)) -> bool:
+    """Truth (the latest `truth_kind`, lat and `truth_lon` in degE7) more than 3 spec.side_m from spec.home:
+    stop early (MAV_CMD_DO_SET_MODE with `hold`, the autopilot's HOLD), the run has failed anyway."""
     for _, msg in reversed(gcs.log[-50:]):
-        if msg.get_type() == "SIMSTATE":
-            e, n = metres_between(spec.home[0], spec.home[1], msg.lat * 1e-7, msg.lng * 1e-7)
+        if msg.get_type() == truth_kind:
+            e, n = metres_between(spec.home[0], spec.home[1], msg.lat * 1e-7, getattr(msg, truth_lon) * 1e-7)
             if math.hypot(e, n) > 3 * spec.side_m:
-                gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_HOLD)
+                gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, *hold)
                 return True
             return False
     return False
@@ -333,23 +393,32 @@ def _runaway(gcs: Gcs, spec: MissionSpec) -> bool:
 
 def _finish(out: Path, gcs: Gcs, spec: MissionSpec, figures: dict[str, Any], auto_t: float | None) -> dict[str, Any]:
     figures.update(score(gcs.log, spec, auto_t, out))
+    gcs.write_tlog(out / "gcs.tlog")
     figures["spec"] = asdict(spec)
     figures["statustext"] = [t for _, _, t in gcs.texts if "taco" in t.lower() or "GPS" in t or "EKF" in t][-40:]
     (out / "result.json").write_text(json.dumps(figures, indent=2, default=float))
     return figures
 
 
-def score(log: list[tuple[float, Any]], spec: MissionSpec, auto_t: float | None, out: Path | None = None
-          ) -> dict[str, Any]:
-    """Figures from the GCS log: truth (SIMSTATE) at 10 Hz, the EKF (GLOBAL_POSITION_INT) and our instance's
-    report (GPS_RAW_INT in solo, GPS2_RAW in handover) each paired with the latest truth before it; with `out`,
-    truth.csv, ekf_error.csv and ours_error.csv go there (from AUTO on)."""
+def score(log: list[tuple[float, Any]], spec: Any, auto_t: float | None, out: Path | None = None, *,
+          truth_kind: str = "SIMSTATE", truth_lon: str = "lng", ours_kind: str | None = None,
+          cruise_mps: float | None = None) -> dict[str, Any]:
+    """Figures from the GCS log: truth (`truth_kind`, lat and `truth_lon` in degE7: ArduPilot's SIMSTATE, PX4's
+    HIL_STATE_QUATERNION) at 10 Hz, stamped by arrival wall time, the EKF (GLOBAL_POSITION_INT) and our
+    instance's report (`ours_kind`; default GPS_RAW_INT in solo, GPS2_RAW in handover) each paired with the
+    latest truth before it; errors are horizontal metres about spec.home. The speed limit is 1.5 x cruise_mps
+    (default spec.wp_speed), m/s. With `out`, truth.csv, ekf_error.csv and ours_error.csv go there (from AUTO
+    on)."""
     lat0, lon0 = spec.home[0], spec.home[1]
-    truth = [(t, *metres_between(lat0, lon0, m.lat * 1e-7, m.lng * 1e-7)) for t, m in log if m.get_type() == "SIMSTATE"]
+    truth = [(t, *metres_between(lat0, lon0, m.lat * 1e-7, getattr(m, truth_lon) * 1e-7)) for t, m in log
+             if m.get_type() == truth_kind]
     if len(truth) < 10:
-        return {"error": "no SIMSTATE"}
+        return {"error": f"no {truth_kind}"}
     T = np.array(truth)
-    ours_kind = "GPS_RAW_INT" if spec.setup == "solo" else "GPS2_RAW"
+    if ours_kind is None:
+        ours_kind = "GPS_RAW_INT" if spec.setup == "solo" else "GPS2_RAW"
+    if cruise_mps is None:
+        cruise_mps = spec.wp_speed
 
     def paired(kind: str, lat: str, lon: str, scale: float) -> np.ndarray:
         rows = []
@@ -372,14 +441,14 @@ def score(log: list[tuple[float, Any]], spec: MissionSpec, auto_t: float | None,
     dt = np.diff(live[:, 0])
     speed = np.hypot(np.diff(live[:, 1]), np.diff(live[:, 2])) / np.maximum(dt, 1e-3)
     speed = speed[dt > 0.05]
-    # a 1 s median keeps SIMSTATE arrival jitter out of the speed
+    # a 1 s median keeps the truth's arrival jitter out of the speed
     k = 10
     smooth = np.array([np.median(speed[i:i + k]) for i in range(max(len(speed) - k, 0))]) if len(speed) > k else speed
     res: dict[str, Any] = {
         "ekf_rms_m": float(np.sqrt(np.mean(ekf[:, 1] ** 2))) if len(ekf) else None,
         "ekf_max_m": float(ekf[:, 1].max()) if len(ekf) else None,
         "true_speed_max_mps": float(smooth.max()) if len(smooth) else None,
-        "true_speed_limit_mps": 1.5 * spec.wp_speed,
+        "true_speed_limit_mps": 1.5 * cruise_mps,
         "ours_reports": int(len(ours)),
         "ours_rms_m": float(np.sqrt(np.mean(ours[:, 1] ** 2))) if len(ours) else None,
         "ours_max_m": float(ours[:, 1].max()) if len(ours) else None,
