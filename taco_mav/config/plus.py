@@ -28,6 +28,15 @@ class PlusConfig:
     # fixes, and consecutive fixes make it observable.
     compass_bias_sigma_rad: float = field(default=0.01, metadata=bounded(0.0))
     compass_bias_tau_s: float = field(default=60.0, metadata=bounded(0.0, open_lo=True))
+    # The paper uses the answer's rotation only to gate it (Sec. III-E): 0 keeps it so. > 0: an accepted fix also
+    # measures the true heading at its capture (the query's heading + the answer's yaw residual) with this 1-sigma,
+    # rad, which makes an AHRS's heading error observable at once (PX4 SIH: 4-7 deg, docs/px4.md).
+    fix_yaw_sigma_rad: float = field(default=0.0, metadata=bounded(0.0))
+    # The paper's heading is the compass (the AHRS yaw) sample by sample (Sec. III-B). True: the heading between
+    # frames integrates the gyro and the compass is fused as a slow reference (ukf.compass_sigma_rad): an AHRS
+    # whose yaw lags real turns (PX4 SIH's EKF2: -4 deg for a -19 deg turn the gyro and truth agree on, docs/px4.md)
+    # then bends no track.
+    gyro_heading: bool = False
     initial_speed_sigma_mps: float = field(default=0.3, metadata=bounded(0.0, open_lo=True))
     initial_bias_sigma_mps2: float = field(default=0.05, metadata=bounded(0.0, open_lo=True))
     # Zero-velocity updates when the IMU says the vehicle stands still.

@@ -24,7 +24,7 @@ from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, Moment
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
 from taco_mav.core.gnss_fusion import GnssFusion, GnssMeasurement
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.preintegration import Increment, Preintegrator
+from taco_mav.core.preintegration import Increment, Preintegrator, wrap_angle
 from taco_mav.core.search import (best_candidate, cross_offsets, cross_spacing, fix_position,
                                   forward_bias, search_centres, trigger_reason)
 from taco_mav.core.smoother import FixNode, SmoothResult, smooth
@@ -50,6 +50,7 @@ class _Tick:
     pre_xy: tuple[float, float] = (0.0, 0.0)
     terms: ErrorTerms = ErrorTerms(0.0, 0.0, 0.0)
     fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
+    fix_heading: tuple[float, float] | None = None  # taco+: (true heading ENU rad, 1-sigma rad) of that fix
     stationary: bool = False  # taco+: zero-velocity update at this frame
     dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
     track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
@@ -171,6 +172,8 @@ class Localiser(GnssFusion):
         self._after_heading(tick)
         if tick.fix is not None:
             self.ukf.update_position(*tick.fix)
+        if tick.fix_heading is not None:
+            self.ukf.update_true_heading(*tick.fix_heading)
         self._terms = terms
         tick.terms, tick.window, tick.pre_xy = terms, self._window, (pre_x, pre_y)
         tick.x, tick.P = self.ukf.get_state()
@@ -276,14 +279,15 @@ class Localiser(GnssFusion):
         return fix_sigmas(w, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num, p.fix_lat_min_m,
                           p.fix_lat_max_m, p.anisotropic if anisotropic is None else anisotropic)
 
-    def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float) -> float:
-        """Apply a fix (ENU m, body sigmas m) on arrival or at its capture frame `tick` (then required), record
-        it for the smoother; returns the NIS."""
+    def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float,
+              heading: tuple[float, float] | None = None) -> float:
+        """Apply a fix (ENU m, body sigmas m; taco+: with the true heading it measures, (ENU rad, 1-sigma rad)) on
+        arrival or at its capture frame `tick` (then required), record it for the smoother; returns the NIS."""
         if self.p.apply_on_arrival:
-            nis = self._apply_now(xy, s_f, s_l, tick)
+            nis = self._apply_now(xy, s_f, s_l, tick, heading)
         else:
             assert tick is not None
-            nis = self._apply_at(tick, xy, s_f, s_l)
+            nis = self._apply_at(tick, xy, s_f, s_l, heading)
         if self.record and tick is not None:
             self._graph_fixes[tick.node] = FixNode(tick.node, xy.copy(), s_f, s_l)
         return nis
@@ -306,11 +310,14 @@ class Localiser(GnssFusion):
             return self._history[-1] if self._history else None
         return next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
 
-    def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: _Tick | None) -> float:
+    def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: _Tick | None,
+                   heading: tuple[float, float] | None = None) -> float:
         R = fix_covariance(float(self.ukf.x[2]), s_f, s_l)
         nis = self.ukf.update_position(xy, R)
+        if heading is not None:
+            self.ukf.update_true_heading(*heading)
         if tick is not None:
-            tick.fix = (xy.copy(), R)
+            tick.fix, tick.fix_heading = (xy.copy(), R), heading
             tick.x, tick.P = self.ukf.get_state()
         self._reset_anchor()
         dx, dy = self.pre.interval_displacement
@@ -319,12 +326,15 @@ class Localiser(GnssFusion):
             self._graph_x[tick.node] = tick.x[:3].copy()
         return nis
 
-    def _apply_at(self, tick: _Tick, xy: np.ndarray, s_f: float, s_l: float) -> float:
+    def _apply_at(self, tick: _Tick, xy: np.ndarray, s_f: float, s_l: float,
+                  heading: tuple[float, float] | None = None) -> float:
         """Rewind to `tick`, update there, reset the anchor there, replay the later frames."""
         self.ukf.set_state(tick.x, tick.P)
         R = fix_covariance(float(tick.x[2]), s_f, s_l)
         nis = self.ukf.update_position(xy, R)
-        tick.fix = (xy.copy(), R)
+        if heading is not None:
+            self.ukf.update_true_heading(*heading)
+        tick.fix, tick.fix_heading = (xy.copy(), R), heading
         tick.x, tick.P = self.ukf.get_state()
         self._reset_anchor()  # the replay below re-extends the window and recomputes the terms
         pre_x, pre_y = float(tick.x[0]), float(tick.x[1])
@@ -360,10 +370,13 @@ class Localiser(GnssFusion):
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
-        """The current estimate: UKF position at the last frame plus the displacement integrated since."""
+        """The current estimate: UKF position and heading at the last frame plus the displacement and turn
+        integrated since. The heading is the filter's (taco+: the compass less its learnt bias), not the raw
+        compass: on an autopilot that fuses our velocity, its direction must not echo the autopilot's own yaw."""
         dx, dy = self.pre.interval_displacement
         x = self.ukf.x
-        return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), float(self.pre.theta), float(self.pre.speed),
+        theta = wrap_angle(float(x[2]) + wrap_angle(self.pre.theta - self.pre.interval_heading))
+        return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), theta, float(self.pre.speed),
                         self.ukf.P[:2, :2].copy(), self._terms.epsilon, self.t - self._last_fix_t)
 
     @property

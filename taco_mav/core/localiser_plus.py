@@ -51,6 +51,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
             raise ValueError("PlusLocaliser needs params.plus (the taco+ parameters)")
         self.q = params.plus
         super().__init__(params, t0, x, y, heading, speed, record, heading_offset)
+        self.pre.gyro_heading = self.q.gyro_heading
         q, s_xy, s_th = self.q, params.initial_sigma_xy_m, params.initial_sigma_theta_rad
         var = [s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2,
                q.compass_bias_sigma_rad**2][:n_states(q)]
@@ -169,6 +170,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
     def _close_tick(self, tick: _Tick) -> None:
         self._odo += tick.inc.distance
         self._feedback(tick)
+        if self.q.gyro_heading:  # the gyro integrates on from the filter's heading
+            self.pre.rebase_heading(float(self.ukf.x[2]))
         if self.q.guard:
             self._guard()
 
@@ -321,7 +324,9 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
             self.fix_scale.update(innov, Pz, fix_covariance(float(tick.x[2]), s_f0, s_l0))
-        self._fuse(tick, z, s_f, s_l)
+        # the answer's rotation measures the true heading at capture (plus.fix_yaw_sigma_rad; 0: gate only)
+        heading = (q.heading + float(psi[k]), qp.fix_yaw_sigma_rad) if qp.fix_yaw_sigma_rad > 0.0 else None
+        self._fuse(tick, z, s_f, s_l, heading)
         self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
         if learn:
             self.report_factor.update(nis)

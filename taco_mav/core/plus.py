@@ -43,6 +43,8 @@ class PlusParams:
     q_bias_mps2: float = 0.005  # accelerometer-bias random walk, (m/s^2)/sqrt(s)
     compass_bias_sigma_rad: float = 0.01  # Gauss-Markov std of the compass/AHRS heading bias (0: no state)
     compass_bias_tau_s: float = 60.0
+    fix_yaw_sigma_rad: float = 0.0  # > 0: an accepted fix also measures the true heading (config/plus.py)
+    gyro_heading: bool = False  # heading between frames from the gyro, the compass a slow reference (config/plus.py)
     initial_speed_sigma_mps: float = 0.3
     initial_bias_sigma_mps2: float = 0.05
     # zero-velocity update

@@ -72,6 +72,9 @@ class Preintegrator:
     x, y: dead-reckoned position, ENU metres. accel_fwd: last gravity-compensated forward accel, m/s^2.
     heading_offset: added to the compass heading, rad: the UTM meridian convergence (grid heading = true
     heading + convergence), so that headings live on the same grid as the UTM positions.
+    gyro_heading (taco+, plus.gyro_heading): theta integrates the gyro's yaw rate (body rates levelled by roll and
+    pitch) instead of taking each sample's compass heading; `compass` keeps the compass heading, which the filter
+    fuses as a slow reference (`Increment.theta_end`). `rebase_heading` sets theta to the filter's at a frame.
     """
 
     def __init__(self, t0: float, x: float = 0.0, y: float = 0.0, theta: float = 0.0, speed: float = 0.0,
@@ -84,6 +87,8 @@ class Preintegrator:
         self.allow_reverse = allow_reverse
         self.max_dt_s = max_dt_s
         self.accel_fwd = 0.0
+        self.gyro_heading = False
+        self.compass = theta  # the last sample's compass heading, ENU rad (+ heading_offset)
         self._reset_interval(theta)
 
     def _reset_interval(self, theta: float) -> None:
@@ -113,6 +118,11 @@ class Preintegrator:
         h = math.pi / 2.0 - sample.yaw
         h = atan2(sin(h), cos(h)) + self.heading_offset  # enu_heading + offset
         theta = atan2(sin(h), cos(h))
+        self.compass = theta
+        if self.gyro_heading:  # ENU heading rate = -(NED yaw rate) = -(q sin(roll) + r cos(roll)) / cos(pitch)
+            _, gq, gr = sample.gyro_frd
+            h = self.theta - (gq * sr + gr * cr) / cp * dt
+            theta = atan2(sin(h), cos(h))
         v0 = self.speed
         v1 = v0 + a * dt
         if v1 < 0.0 and not self.allow_reverse:
@@ -155,11 +165,17 @@ class Preintegrator:
             dt=self._dt,
             distance=self._dist,
             t_end=self.t,
-            theta_end=self.theta,
+            theta_end=self.compass,
             speed_end=self.speed,
         )
         self._reset_interval(self.theta)
         return inc
+
+    def rebase_heading(self, theta: float) -> None:
+        """gyro_heading: set theta (ENU rad) to the filter's heading at a frame boundary (the open interval must
+        be empty, i.e. right after `take_increment`), so the gyro integrates from the best heading known."""
+        self.theta = theta
+        self._reset_interval(theta)
 
     def reset_position(self, x: float, y: float) -> None:
         """Position-only anchor reset on an accepted fix (Sec. III-F): heading and speed are preserved."""

@@ -123,7 +123,7 @@ class PlanarUkf:
         self._lam_n = (alpha**2 * (n + kappa) - n) + n  # filterpy: (lambda_ + n) scales P before the Cholesky
         self._x = np.asarray(x0, dtype=float).copy()
         self._P = nearest_pd(np.asarray(P0, dtype=float))
-        self._h_pos, self._h_theta = _rows(n, 0, 1), _rows(n, 2)
+        self._h_pos, self._h_theta, self._h_true_theta = _rows(n, 0, 1), _rows(n, 2), _rows(n, 2)
         if n >= 6:
             self._h_theta[0, 5] = 1.0  # the compass reads theta + beta
         if n == 8:
@@ -201,6 +201,11 @@ class PlanarUkf:
         """Compass heading measurement, ENU rad, 1-sigma rad (innovation wrapped to (-pi, pi]); with the
         compass-bias state the prediction is theta + beta."""
         self._scalar(self._h_theta, float(theta), sigma * sigma, -1)
+
+    def update_true_heading(self, theta: float, sigma: float) -> None:
+        """A measurement of the true heading theta itself (a camera fix's rotation), ENU rad, 1-sigma rad
+        (innovation wrapped); unlike the compass it carries no compass bias."""
+        self._scalar(self._h_true_theta, float(theta), sigma * sigma, -1)
 
     def _scalar(self, H: np.ndarray, z: float, variance: float, col: int) -> None:
         """One-row update with this variance: z a heading (col < 0: innovation wrap(z - H x)) or state `col`."""
