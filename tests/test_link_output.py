@@ -1,4 +1,4 @@
-"""The output stage: estimates -> GPS_INPUT / GLOBAL_POSITION_SENSOR / ODOMETRY bytes (decoded with pymavlink),
+"""The output stage: estimates -> GPS_INPUT / HIL_GPS / ODOMETRY bytes (decoded with pymavlink),
 with the IMU-stall growth of the accuracy and the health transitions."""
 
 from __future__ import annotations
