@@ -25,6 +25,7 @@ class ReferencePreintegrator(Preintegrator):
         dt = min(dt, self.max_dt_s)
         a = level_forward_accel(sample.accel_frd, sample.roll, sample.pitch)
         theta = wrap_angle(enu_heading(sample.yaw) + self.heading_offset)
+        self.compass = theta  # the compass heading the filter fuses (Increment.theta_end); theta in compass mode
         v0 = self.speed
         v1 = v0 + a * dt
         if not self.allow_reverse and v1 < 0.0:
@@ -96,7 +97,8 @@ def test_preintegrator_step_matches_reference_bit_for_bit() -> None:
         ref = ReferencePreintegrator(5.0, 1.0, 2.0, 3.0, 4.0, allow_reverse=allow_reverse, heading_offset=0.0123)
         for k, s in enumerate(_stream(rng, 3000)):
             assert fast.add(s) == ref.add(s)
-            state = lambda p: (p.t, p.x, p.y, p.theta, p.speed, p.accel_fwd, p._dx, p._dy, p._dist, p._dt)  # noqa: E731
+            state = lambda p: (p.t, p.x, p.y, p.theta, p.compass, p.speed, p.accel_fwd, p._dx, p._dy, p._dist,  # noqa: E731
+                               p._dt)
             assert state(fast) == state(ref)
             if k % 10 == 0:
                 assert fast.take_increment() == ref.take_increment()

@@ -79,13 +79,13 @@ def test_our_instance_is_never_real() -> None:
     """gps_id 0: GPS1 is ours until GPS1_TYPE says otherwise; a type-14 GPS2 is someone else's GPS_INPUT;
     without GPS_INPUT output (PX4) every instance is a receiver."""
     types: dict[int, int] = {}
-    g = GnssTracker(gps_id=0, writes_gps_input=True, hdop_uere_m=2.0, types=types)
+    g = GnssTracker(gps_id=0, writes_gps=True, hdop_uere_m=2.0, types=types)
     assert g.role(1) == "ours" and g.role(2) == "real"
     types.update({1: 14, 2: 14})
     assert g.role(1) == "ours" and g.role(2) == "mav"
     types.update({1: 1, 2: 0})
     assert g.role(1) == "real" and g.role(2) == "none"  # GPS_INPUT misconfigured: GPS1 is a receiver
-    g2 = GnssTracker(gps_id=1, writes_gps_input=True, hdop_uere_m=2.0)
+    g2 = GnssTracker(gps_id=1, writes_gps=True, hdop_uere_m=2.0)
     assert g2.role(1) == "real" and g2.role(2) == "ours"
     assert GnssTracker(0, False, 2.0).role(1) == "real"
     r, ev = g2.on_message(2, reading(instance=2), 3, 0.0)
@@ -147,7 +147,7 @@ def test_message_request_repeats_while_wanted() -> None:
 # --------------------------------------------------------------------------------------------- loss and return
 
 def test_lost_after_one_second_and_back_after_one_second() -> None:
-    g = GnssTracker(gps_id=0, writes_gps_input=True, hdop_uere_m=2.0)
+    g = GnssTracker(gps_id=0, writes_gps=True, hdop_uere_m=2.0)
     t = 0.0
     for _ in range(4):  # 2 Hz of 3D fixes
         r, ev = g.on_message(2, reading(), 3, t)
@@ -172,7 +172,7 @@ def test_lost_after_one_second_and_back_after_one_second() -> None:
 def test_flapping_fix_type_changes_only_counters() -> None:
     """3D / NO_FIX alternating at 4 Hz: never 1 s without a fix, so no loss; once lost, a flapping receiver
     never runs 1 s without NO_FIX, so no return."""
-    g = GnssTracker(gps_id=0, writes_gps_input=True, hdop_uere_m=2.0)
+    g = GnssTracker(gps_id=0, writes_gps=True, hdop_uere_m=2.0)
     events = []
     for k in range(40):
         r = reading() if k % 2 == 0 else None
@@ -188,13 +188,13 @@ def test_flapping_fix_type_changes_only_counters() -> None:
 
 
 def test_far_fix_is_garbage() -> None:
-    g = GnssTracker(gps_id=0, writes_gps_input=True, hdop_uere_m=2.0)
+    g = GnssTracker(gps_id=0, writes_gps=True, hdop_uere_m=2.0)
     r, ev = g.on_message(2, reading(north_m=200_000.0), 3, 0.0, ORIGIN)
     assert r is None and ev == [] and g.state == "none" and g.counts["far_from_origin"] == 1
 
 
 def test_fix_time_kept_or_replaced() -> None:
-    g = GnssTracker(gps_id=0, writes_gps_input=True, hdop_uere_m=2.0)
+    g = GnssTracker(gps_id=0, writes_gps=True, hdop_uere_m=2.0)
     assert g.fix(reading(t=10.0), ORIGIN, 10.4).t == 10.0
     assert g.fix(reading(t=1e9), ORIGIN, 10.4).t == 10.4 and g.counts["time_replaced"] == 1
 
@@ -202,7 +202,7 @@ def test_fix_time_kept_or_replaced() -> None:
 # --------------------------------------------------------------------------------------------- guard events
 
 def test_rejection_run_reported_once_then_accepted_again() -> None:
-    g = GnssTracker(gps_id=1, writes_gps_input=True, hdop_uere_m=2.0)
+    g = GnssTracker(gps_id=1, writes_gps=True, hdop_uere_m=2.0)
     g.on_message(1, reading(instance=1), 3, 0.0)
     assert g.outcome(GnssOutcome(True, "fused", 0.5, 0.4, 0.6), 1.0) == []
     ev = g.outcome(GnssOutcome(False, "rejected", 40.0, 22.0, 7.6), 2.0)
