@@ -21,9 +21,9 @@ Set-ups:
 
     python tools/px4_mission.py --px4 $PX4_SITL --out /tmp/px4_1 [--setup solo|handover|gnss] [--estimator paper]
 
-Writes OUT/result.json (the figures), OUT/truth.csv, ekf_error.csv, ours_error.csv (as sitl_mission), the daemon's
-tlog and events in OUT/daemon/<UTC start time>/, OUT/daemon.log, and OUT/px4/ (rootfs with PX4's log and
-parameters, out.log: its console). Nothing here is product code: tests/test_px4.py runs it when PX4_SITL is set.
+Writes OUT/result.json (the figures), OUT/truth.csv, ekf_error.csv, ours_error.csv (as sitl_mission), gcs.tlog
+(all the ground station heard), the daemon's tlog and events in OUT/daemon/<UTC start time>/, OUT/daemon.log, and
+OUT/px4/ (rootfs with PX4's log and parameters, out.log: its console). Nothing here is product code: tests/test_px4.py runs it when PX4_SITL is set.
 """
 
 from __future__ import annotations
