@@ -219,7 +219,8 @@ def test_px4_autopilot_gets_hil_gps_and_serves_its_truth_stream() -> None:
     base = profile_to_dict(load_profile("px4_rover"))
     base["matcher"], base["estimator"] = "emulator", "paper"  # paper mode's trigger asks within seconds at rest
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict(base), DaemonOptions(connect=f"udpin:127.0.0.1:{port}", origin=(49.0, 8.4, 115.0)))
+    opt = DaemonOptions(connect=f"udpin:127.0.0.1:{port}", origin=(49.0, 8.4, 115.0))
+    daemon = Daemon(profile_from_dict(base), opt)
     daemon.start()
     time.sleep(0.3)
     ap = MiniAutopilot(port, flavour="px4", imu_hz=50.0, speed=0.0)  # at rest: no GNSS tells a start speed

@@ -24,7 +24,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic", "synthetic_3d")
+SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic",
+           "synthetic_3d")
 PX4_PARAMS = ("px4_rover_solo", "px4_rover_handover")
 
 pytestmark = pytest.mark.slow

@@ -23,7 +23,8 @@ Set-ups:
 
 Writes OUT/result.json (the figures), OUT/truth.csv, ekf_error.csv, ours_error.csv (as sitl_mission), gcs.tlog
 (all the ground station heard), the daemon's tlog and events in OUT/daemon/<UTC start time>/, OUT/daemon.log, and
-OUT/px4/ (rootfs with PX4's log and parameters, out.log: its console). Nothing here is product code: tests/test_px4.py runs it when PX4_SITL is set.
+OUT/px4/ (rootfs with PX4's log and parameters, out.log: its console). Nothing here is product code:
+tests/test_px4.py runs it when PX4_SITL is set.
 """
 
 from __future__ import annotations

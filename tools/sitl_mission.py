@@ -15,7 +15,8 @@ taco-mav is GPS2 with GPS2_TYPE=14; SIM_GPS1_ENABLE=0 part-way through the missi
     python tools/sitl_mission.py --ardurover $ARDUROVER --out /tmp/sitl1 [--setup handover] [--estimator paper]
 
 Writes OUT/result.json (the figures), OUT/truth.csv, ekf_error.csv, ours_error.csv, gcs.tlog (all the ground station
-heard), the daemon's tlog and events in OUT/daemon/<UTC start time>/, and OUT/sitl/ (SITL's own files). Nothing here is product code: tests/test_sitl.py runs it when ARDUROVER is set.
+heard), the daemon's tlog and events in OUT/daemon/<UTC start time>/, and OUT/sitl/ (SITL's own files). Nothing
+here is product code: tests/test_sitl.py runs it when ARDUROVER is set.
 """
 
 from __future__ import annotations

@@ -179,7 +179,7 @@ def hil_gps(mav: Any, sol: NavSolution, cfg: OutputConfig, unix_time_s: float) -
     vn, ve = (int(round(max(-32767.0, min(32767.0, _f(v, 0.0) * 100.0)))) for v in (sol.vn, sol.ve))
     return mav.hil_gps_encode(
         int(unix_time_s * 1e6) if math.isfinite(unix_time_s) and unix_time_s > 0 else 0, sol.fix_type,
-        _degE7(sol.lat), _degE7(sol.lon), int(round(_f(sol.alt, 0.0) * 1000.0)), _cm_u16(min(sol.sigma_h, 1000.0)),
+        _degE7(sol.lat), _degE7(sol.lon), int(round(_f(sol.alt, 0.0) * 1000.0)), _cm_u16(sol.sigma_h),
         _cm_u16(cfg.vertical_accuracy_m), _cm_u16(abs(_f(sol.speed, 0.0))), vn, ve, 0, cog, cfg.satellites_visible,
         cfg.gps_id, yaw_cdeg(sol.yaw_ned) if cfg.send_yaw else 0)
 
@@ -212,7 +212,8 @@ def odometry(mav: Any, sol: NavSolution, cfg: OutputConfig, roll: float, pitch: 
     quality = -1 if sol.fix_type != GPS_FIX_3D else max(1, min(100, int(round(100.0 * (1.0 - sol.sigma_h / cfg.degrade_accuracy_m)))))
     g = [_f(v, 0.0) for v in gyro_frd]
     return mav.odometry_encode(
-        int(max(_f(sol.t_autopilot if t_sender is None else t_sender, 0.0), 0.0) * 1e6), MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, _f(sol.x_n, 0.0), _f(sol.y_e, 0.0),
+        int(max(_f(sol.t_autopilot if t_sender is None else t_sender, 0.0), 0.0) * 1e6), MAV_FRAME_LOCAL_NED,
+        MAV_FRAME_BODY_FRD, _f(sol.x_n, 0.0), _f(sol.y_e, 0.0),
         0.0, q, _f(sol.speed, 0.0), 0.0, 0.0, g[0], g[1], g[2], pose, vel, reset_counter & 0xFF, MAV_ESTIMATOR_TYPE_VIO,
         quality)
 

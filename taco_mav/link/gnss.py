@@ -3,7 +3,8 @@
 conversion (no sockets); the daemon feeds it messages and writes what it returns.
 
 Instances: GPS_RAW_INT reports GPS1 (instance 1), GPS2_RAW GPS2 (instance 2), as ArduPilot sends them (PX4:
-its first and second receiver, `sensor_gps` 0 and 1). Our GPS_INPUT (PX4: HIL_GPS) goes to instance `gps_id + 1`; when its GPSn_TYPE is 14 (MAV) that instance only echoes what we send,
+its first and second receiver, `sensor_gps` 0 and 1). Our GPS_INPUT (PX4: HIL_GPS) goes to instance
+`gps_id + 1`; when its GPSn_TYPE is 14 (MAV) that instance only echoes what we send,
 so it is never read as GNSS. Until the parameter answer is known it is taken to be ours; another instance of
 type 14 is fed by someone else's GPS_INPUT and is not a receiver either; type 0 is no GPS.
 
@@ -95,7 +96,8 @@ class GnssEvent:
 
 class GnssTracker:
     """See the module docstring. gps_id: output.gps_id (our instance is gps_id + 1); writes_gps: the profile
-    sends a GPS-instance output (GPS_INPUT on ArduPilot, HIL_GPS on PX4; else no instance is ours); types: instance -> GPSn_TYPE, shared with the
+    sends a GPS-instance output (GPS_INPUT on ArduPilot, HIL_GPS on PX4; else no instance is ours); types:
+    instance -> GPSn_TYPE, shared with the
     parameter check (filled as answers arrive); hdop_uere_m: output.hdop_uere_m for HDOP-only receivers."""
 
     def __init__(self, gps_id: int, writes_gps: bool, hdop_uere_m: float, types: dict[int, int] | None = None,

@@ -70,7 +70,7 @@ class OutputStage:
                 out.append(encoders.hil_gps(mav, sol, self.cfg, utc_s))
             else:
                 a = attitude
-                t_companion = sol.t_autopilot - clock_offset_s if clock_offset_s is not None else sol.t_autopilot
+                t_companion = None if clock_offset_s is None else sol.t_autopilot - clock_offset_s
                 out.append(encoders.odometry(mav, sol, self.cfg, a.roll if a else 0.0, a.pitch if a else 0.0,
                                              gyro_frd, self.compass_sigma_rad, reboots, t_companion))
         return out
