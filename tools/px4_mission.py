@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sitl_mission import (M, Gcs, arm, build_world, mavutil, score, set_ekf_origin,  # noqa: E402
+from sitl_mission import (M, Gcs, arm, build_world, mavutil, score, sent_score, set_ekf_origin,  # noqa: E402
                           stop_group, wait_ekf)
 from sitl_mission import runaway as _runaway  # noqa: E402
 
@@ -385,6 +385,8 @@ def _finish(out: Path, gcs: Px4Gcs, spec: Px4MissionSpec, figures: dict[str, Any
     log = [(t, m) for t, m in gcs.log if not (m.get_type() == TRUTH and m.lat == 0 and m.lon == 0)]
     figures.update(score(log, spec, auto_t, out, truth_kind=TRUTH, truth_lon="lon", ours_kind=ours,
                          cruise_mps=spec.cruise_speed))
+    if daemon is not None:
+        figures.update(sent_score(out / "daemon", spec, auto_t, out, truth_kind=TRUTH, truth_lon="lon"))
     texts = statustexts(gcs)
     px4_texts = [txt for _, comp, _, txt in texts if comp == M.MAV_COMP_ID_AUTOPILOT1]
     alarms = [txt for txt in px4_texts if any(w in txt.lower() for w in FAILSAFE_WORDS)]
