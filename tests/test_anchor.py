@@ -7,7 +7,7 @@ import pytest
 
 from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.plus_params import PlusParams
 from taco_mav.link.anchor import Anchor
 
 

@@ -224,3 +224,25 @@ def test_config_reexports_every_public_name_of_its_modules() -> None:
         module = __import__(name, fromlist=["__all__"])
         missing = [x for x in getattr(module, "__all__", ()) if getattr(config, x, None) is not getattr(module, x)]
         assert not missing, f"{name}: not re-exported by taco_mav.config: {missing}"
+
+
+def _dataclass_fields() -> dict[str, frozenset[str]]:
+    """Every @dataclass of the package: 'module.Class' -> its annotated field names."""
+    out: dict[str, frozenset[str]] = {}
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and any(
+                    "dataclass" in ast.unparse(d) for d in node.decorator_list):
+                fields = {s.target.id for s in node.body if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)}
+                out[f"{name}.{node.name}"] = frozenset(fields)
+    return out
+
+
+def test_no_two_parameter_classes_mirror_each_other() -> None:
+    """Every parameter is defined once (issue 29): no two parameter dataclasses (named *Params or *Config) of 4
+    or more fields share 80 % of them (config/plus.py's PlusConfig and core/plus.py's PlusParams once shared all
+    77, with five defaults apart)."""
+    classes = sorted((k, v) for k, v in _dataclass_fields().items() if k.endswith(("Params", "Config")))
+    twins = [(a, b) for i, (a, fa) in enumerate(classes) for b, fb in classes[i + 1:]
+             if min(len(fa), len(fb)) >= 4 and len(fa & fb) >= 0.8 * min(len(fa), len(fb))]
+    assert not twins, twins

@@ -6,6 +6,7 @@ import pytest
 from taco_mav.config import (Estimator, Profile, load_profile, localiser_params, profile_from_dict,
                              profile_to_dict, replace_in)
 from taco_mav.core.params import LocaliserParams
+from taco_mav.core.plus_params import PlusParams
 from taco_mav.errors import ConfigError
 
 
@@ -22,14 +23,19 @@ def test_defaults_are_the_papers_values():
     assert p.estimator is Estimator.PAPER
 
 
-def test_localiser_params_carry_every_profile_value():
-    lp = localiser_params(replace_in(Profile(), "gate.enabled", False))
-    assert lp.yaw_gate is False
-    defaults = LocaliserParams()
-    same = localiser_params(Profile())
-    for f in dataclasses.fields(LocaliserParams):
-        if f.name not in ("gyro_arw",):
-            assert getattr(same, f.name) == getattr(defaults, f.name), f.name
+def test_localiser_params_are_the_profile_sections_themselves():
+    """One definition per parameter: the core takes the profile's own section objects, and a bare
+    LocaliserParams() / PlusParams() is exactly what a default profile runs (no twin with other defaults)."""
+    prof = replace_in(Profile(), "gate.enabled", False)
+    lp = localiser_params(prof)
+    assert lp.gate.enabled is False
+    for name in ("imu", "error_model", "trigger", "gate", "ukf", "smoother", "latency", "gnss"):
+        assert getattr(lp, name) is getattr(prof, name), name
+    assert lp.plus is None
+    plus = replace_in(prof, "estimator", Estimator.TACO_PLUS)
+    assert localiser_params(plus).plus is plus.plus
+    assert LocaliserParams() == localiser_params(Profile())
+    assert LocaliserParams(plus=PlusParams()) == localiser_params(replace_in(Profile(), "estimator", Estimator.TACO_PLUS))
 
 
 def test_shipped_profiles_load(tmp_path):

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from taco_mav.core.gnss_guard import (GnssGuard, GnssParams, GuardState, bias_change_variance,
-                                      filter_offset_variance, receiver_variances, window_threshold)
+from taco_mav.core.gnss_guard import (GnssGuard, GuardState, bias_change_variance, filter_offset_variance,
+                                      receiver_variances, window_threshold)
+from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.gnss_shadow import Anchor, DeadReckoner, dr_displacement, shadow, shadow_velocity
 
 RATE = 5.0  # receiver readings per second

@@ -11,7 +11,7 @@ from helpers import OracleMatcher, simulate
 from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.plus_params import PlusParams
 
 
 def test_unaided_track_integrates_and_flags_a_disagreement():

@@ -5,7 +5,7 @@ import pytest
 
 from helpers import OracleMatcher, simulate
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.params import LocaliserParams
+from taco_mav.core.params import ImuParams, LatencyParams, LocaliserParams, TriggerParams
 from taco_mav.core.types import MatchResult
 
 
@@ -39,7 +39,7 @@ def test_delayed_fixes_are_compensated_and_naive_application_is_worse():
     _, ate0 = run(d, LocaliserParams())
     _, ate03 = run(d, LocaliserParams(), latency=0.3)
     _, ate1 = run(d, LocaliserParams(), latency=1.0)
-    _, naive1 = run(d, LocaliserParams(apply_on_arrival=True), latency=1.0)
+    _, naive1 = run(d, LocaliserParams(latency=LatencyParams(apply_on_arrival=True)), latency=1.0)
     assert ate0 < 1.5
     assert abs(ate03 - ate0) <= 0.5
     assert abs(ate1 - ate0) <= 0.5
@@ -64,7 +64,7 @@ def test_time_trigger_fires_on_a_stationary_vehicle():
 
 def test_error_trigger_fires_on_a_moving_vehicle_before_the_time_trigger():
     d = simulate(lambda t: 10.0, lambda t: 0.0, 3.0)
-    loc = Localiser(LocaliserParams(gyro_arw=0.05), 0.0, heading=0.0, speed=10.0)
+    loc = Localiser(LocaliserParams(imu=ImuParams(gyro_arw=0.05)), 0.0, heading=0.0, speed=10.0)
     q = None
     for s in d.samples:
         loc.add_imu(s)
@@ -97,9 +97,9 @@ def test_yaw_gate_rejects_and_resets_the_time_counter_only():
 
 def test_single_crop_and_no_forward_bias_switches_change_the_query():
     d = simulate(lambda t: 10.0, lambda t: 0.0, 3.0)
-    for params, n_crops, biased in [(LocaliserParams(gyro_arw=0.05), 5, True),
-                                     (LocaliserParams(gyro_arw=0.05, multi_crop=False), 1, True),
-                                     (LocaliserParams(gyro_arw=0.05, forward_bias=False), 5, False)]:
+    for params, n_crops, biased in [(LocaliserParams(imu=ImuParams(gyro_arw=0.05)), 5, True),
+                                     (LocaliserParams(imu=ImuParams(gyro_arw=0.05), trigger=TriggerParams(multi_crop=False)), 1, True),
+                                     (LocaliserParams(imu=ImuParams(gyro_arw=0.05), trigger=TriggerParams(forward_bias=False)), 5, False)]:
         loc = Localiser(params, 0.0, speed=10.0)
         q = None
         for s in d.samples:

@@ -9,7 +9,7 @@ import numpy as np
 from helpers import simulate
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.plus_params import PlusParams
 from test_imu_check import ROVER, _sitl_like
 
 

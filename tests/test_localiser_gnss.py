@@ -13,7 +13,7 @@ import pytest
 from helpers import OracleMatcher, simulate
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.plus_params import PlusParams
 from taco_mav.core.types import GnssFix, ImuSample
 
 PAPER = LocaliserParams()

@@ -10,8 +10,8 @@ import pytest
 from helpers import OracleMatcher, simulate
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.lock import LockState
-from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.params import LocaliserParams, UkfParams
+from taco_mav.core.plus_params import PlusParams
 from taco_mav.core.types import MatchResult
 from taco_mav.core.ukf import fix_covariance
 from test_localiser import _drive
@@ -369,7 +369,7 @@ def test_gyro_heading_keeps_the_track_straight_through_a_lagging_ahrs():
     """plus.gyro_heading: the heading between frames from the gyro, the compass (ukf.compass_sigma_rad 0.3) a
     slow reference; the paper's sample-by-sample compass heading bends the track by the AHRS's lag."""
     d = _lagging_ahrs(_drive(), 5.0)
-    base = dataclasses.replace(PLUS, compass_sigma_rad=0.3)
+    base = dataclasses.replace(PLUS, ukf=UkfParams(compass_sigma_rad=0.3))
     runs = [run_plus(d, dataclasses.replace(base, plus=dataclasses.replace(base.plus, gyro_heading=g)))
             for g in (False, True)]
     (_, err_compass, _), (loc, err_gyro, _) = runs

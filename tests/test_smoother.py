@@ -3,7 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from taco_mav.core.smoother import FixNode, SmootherParams, loop_closure_pairs, smooth
+from taco_mav.core.params import SmootherParams
+from taco_mav.core.smoother import FixNode, loop_closure_pairs, smooth
 
 
 def _polyline(points, step=1.0):

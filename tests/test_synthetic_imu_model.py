@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from taco_mav.config import ImuConfig
+from taco_mav.config import ImuParams
 from taco_mav.datasets.synthetic.imu_model import PRESETS, ImuNoiseModel, apply_imu_noise, gauss_markov, noise_preset
 from taco_mav.errors import ConfigError
 
@@ -39,7 +39,7 @@ def test_white_noise_levels_match_arw_and_vrw():
 
 
 def test_automotive_gyro_arw_matches_the_default_profile():
-    assert PRESETS["automotive"].gyro_arw == pytest.approx(ImuConfig().gyro_arw, rel=1e-12)
+    assert PRESETS["automotive"].gyro_arw == pytest.approx(ImuParams().gyro_arw, rel=1e-12)
     assert PRESETS["automotive"].heading_sigma == pytest.approx(math.radians(0.5))
 
 

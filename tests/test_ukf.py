@@ -5,7 +5,7 @@ import pytest
 
 from helpers import OracleMatcher, simulate
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.params import LocaliserParams
+from taco_mav.core.params import ImuParams, LocaliserParams
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
 
 CHI2_2DOF_95 = 5.991
@@ -48,7 +48,7 @@ def test_position_update_equals_the_kalman_closed_form():
 def test_filter_is_never_overconfident_on_a_simulated_drive():
     d = simulate(lambda t: min(9.0, 2.0 + t), lambda t: 0.08 * math.sin(0.05 * t), 240.0,
                  accel_noise=0.05, gyro_noise=0.001, compass_noise=0.01, seed=4)
-    loc = Localiser(LocaliserParams(gyro_arw=1e-4), 0.0, heading=float(d.theta[0]), speed=2.0)
+    loc = Localiser(LocaliserParams(imu=ImuParams(gyro_arw=1e-4)), 0.0, heading=float(d.theta[0]), speed=2.0)
     matcher = OracleMatcher(d, sigma_fwd=1.0, sigma_lat=2.0, seed=5)  # what w = 1 claims is 1.5 / 3.0
     nees = []
     for s in d.samples:

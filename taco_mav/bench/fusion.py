@@ -18,8 +18,8 @@ import numpy as np
 
 from taco_mav.core import ukf_kernels
 from taco_mav.core.localiser_plus import make_localiser
-from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus import PlusParams
+from taco_mav.core.params import LocaliserParams, TriggerParams
+from taco_mav.core.plus_params import PlusParams
 from taco_mav.core.types import ImuSample
 
 G = 9.80665
@@ -61,7 +61,7 @@ def run(progress: bool = False) -> dict[str, float]:
     ukf_kernels.warm_up()  # JIT compilation (or the cache load) is not steady state
     duration = 120.0
     samples = _drive(duration)
-    paper = LocaliserParams(trigger_epsilon_m=math.inf, trigger_time_s=math.inf)
+    paper = LocaliserParams(trigger=TriggerParams(epsilon_m=math.inf, time_s=math.inf))
     plus = LocaliserParams(plus=PlusParams(trigger_sigma_m=math.inf, trigger_time_s=math.inf, capture_radius_m=math.inf))
     paper_wall, paper_cpu = _ms_per_data_second(paper, samples, duration)
     plus_wall, plus_cpu = _ms_per_data_second(plus, samples, duration)

@@ -11,8 +11,9 @@ wrong types and out-of-range values raise `ConfigError` naming the file and the 
 One module per concern, every public name re-exported here (`from taco_mav.config import X`):
 
 - `fields`: `Estimator` and the `bounded` range metadata every section uses;
-- `paper`: the paper's sections (imu, error_model, trigger, gate, ukf, smoother) and latency;
-- `plus`: taco+ and the GNSS guard (issues 7, 14, 19);
+- the estimator's sections are the core's parameter classes, defined once there and re-exported here:
+  core/params.py (the paper's imu, error_model, trigger, gate, ukf, smoother, and latency), core/plus_params.py
+  (taco+, issues 7, 17-19), core/gnss_params.py (the GNSS guard, issue 14);
 - `sensors`: camera, map and the matchers (classical, emulator, fg2);
 - `link`: the MAVLink link and the daemon's output;
 - `profile`: `Profile`, `replace_in`, `profile_to_dict`, `localiser_params`;
@@ -25,15 +26,17 @@ from taco_mav.config.fields import Estimator, bounded
 from taco_mav.config.link import LinkConfig, OutputConfig
 from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, parse_overrides,
                                      profile_from_dict, resolve_profile_path, shipped_profiles)
-from taco_mav.config.paper import (ErrorModelConfig, GateConfig, ImuConfig, LatencyConfig, SmootherConfig,
-                                   TriggerConfig, UkfConfig)
-from taco_mav.config.plus import GnssConfig, PlusConfig
 from taco_mav.config.profile import (MATCHERS, Profile, frd_fwd_left, localiser_params, profile_to_dict,
                                      replace_in)
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
+from taco_mav.core.gnss_params import GnssParams
+from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, SmootherParams, TriggerParams,
+                                  UkfParams)
+from taco_mav.core.plus_params import PlusParams
 
 __all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "ClassicalMatcherConfig",
-           "EmulatorConfig", "ErrorModelConfig", "Estimator", "Fg2Config", "GateConfig", "GnssConfig", "ImuConfig",
-           "LatencyConfig", "LinkConfig", "MapConfig", "OutputConfig", "PlusConfig", "Profile", "SmootherConfig",
-           "TriggerConfig", "UkfConfig", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
-           "parse_overrides", "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path", "shipped_profiles"]
+           "EmulatorConfig", "ErrorModelParams", "Estimator", "Fg2Config", "GateParams", "GnssParams", "ImuParams",
+           "LatencyParams", "LinkConfig", "MapConfig", "OutputConfig", "PlusParams", "Profile", "SmootherParams",
+           "TriggerParams", "UkfParams", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
+           "parse_overrides", "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path",
+           "shipped_profiles"]

@@ -1,9 +1,11 @@
-"""Building blocks shared by the profile sections: the estimator mode and the range metadata of a field."""
+"""Building blocks shared by the profile sections: the estimator mode and the range metadata of a field (defined
+in the core beside the estimator's own parameters, which use it too)."""
 
 from __future__ import annotations
 
 import enum
-from typing import Any
+
+from taco_mav.core.fields import bounded
 
 __all__ = ["Estimator", "bounded"]
 
@@ -13,9 +15,3 @@ class Estimator(enum.Enum):
 
     PAPER = "paper"
     TACO_PLUS = "taco+"
-
-
-def bounded(lo: float | None = None, hi: float | None = None, *, open_lo: bool = False) -> dict[str, Any]:
-    """Field metadata for a numeric range checked at load time: lo <= value <= hi (lo < value with open_lo);
-    None leaves that side open."""
-    return {"range": (lo, hi, open_lo)}

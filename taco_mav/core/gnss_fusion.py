@@ -33,8 +33,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from taco_mav.core.gnss_guard import (GnssGuard, GnssParams, GuardState, GuardVerdict, filter_offset_variance,
-                                      receiver_variances)
+from taco_mav.core.gnss_guard import GnssGuard, GuardState, GuardVerdict, filter_offset_variance, receiver_variances
+from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.gnss_shadow import Anchor, DeadReckoner, DrSnap
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.types import GnssFix, GnssOutcome
@@ -147,7 +147,7 @@ class GnssFusion:
             ground = float(np.hypot(*vel))
             if ground >= gp.min_speed_mps:
                 course = math.atan2(vel[1], vel[0])
-                if self.p.allow_reverse and abs(wrap_angle(course - pre.theta)) > 0.5 * math.pi:
+                if self.p.imu.allow_reverse and abs(wrap_angle(course - pre.theta)) > 0.5 * math.pi:
                     ground, course = -ground, wrap_angle(course + math.pi)
                 sv = max(fix.sigma_v_mps if math.isfinite(fix.sigma_v_mps) else 0.0, gp.sigma_v_min_mps)
                 # at the frame end: less what the preintegrator gained since (its speed there was
@@ -227,7 +227,7 @@ class GnssFusion:
             return
         since = sum(h.dv_fed for h in self._history if h.t > tick.t)  # set after that frame already
         new = self.pre.speed + m.speed - (tick.inc.speed_end + tick.dv_fed) - since
-        if not self.p.allow_reverse:
+        if not self.p.imu.allow_reverse:
             new = max(new, 0.0)
         self._history[-1].dv_fed += new - self.pre.speed
         self.pre.speed = new

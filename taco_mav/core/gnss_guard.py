@@ -37,58 +37,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
+from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.gnss_shadow import Anchor, DrSnap, dr_displacement, interpolate, shadow, shadow_velocity
-
-
-@dataclass(frozen=True)
-class GnssParams:
-    """Use of real GNSS and the spoofing/jamming guard (issue 14; not in the paper, which uses GNSS only for the
-    origin). Defaults: see config.GnssConfig, which says where each number comes from."""
-
-    enabled: bool = True
-    # measurements
-    sigma_h_min_m: float = 0.5  # floor on the receiver's reported 1-sigma horizontal accuracy
-    sigma_v_min_mps: float = 0.1  # floor on its speed accuracy
-    min_speed_mps: float = 1.0  # speed and course are fused above this ground speed only
-    course_sigma_min_rad: float = 0.03  # floor on the course-as-heading sigma (side slip, lever arm)
-    max_age_s: float = 1.0  # a reading this far from the IMU clock is stale
-    fuse_delay_s: float = 1.0  # a reading is fused this late, once the guard has seen what followed it
-    fuse_interval_s: float = 0.5  # due readings are fused in batches this often (one rewind and replay)
-    # the receiver's error: white noise of white_fraction sigma_h, the rest a wandering bias (first-order
-    # Gauss-Markov, correlation time bias_tau_s): sigma_bias = sqrt(1 - white_fraction^2) sigma_h
-    white_fraction: float = 0.5
-    bias_tau_s: float = 60.0
-    reference_lag_s: float = 7.0  # the shadow starts from the filter's state this long before the reading
-    velocity_lag_s: float = 3.0  # ... for the velocity test (a speed error grows with the shadow's age)
-    # dead reckoning of the shadow reference (1-sigma error growth since its anchor)
-    dr_speed_sigma_mps: float = 0.05  # speed error at the anchor
-    dr_accel_sigma_mps2: float = 0.03  # forward-acceleration error left after the bias state
-    dr_heading_sigma_rad: float = 0.012  # heading error, times the distance travelled (cross-track)
-    dr_pos_rw_mps: float = 0.05  # position random walk, m/sqrt(s)
-    dr_accel_bias_sigma_mps2: float = 0.05  # accelerometer bias an estimator without a bias state leaves
-    dr_scale_min: float = 0.1  # the learnt scale on the dead reckoning's variance: at least this ...
-    dr_scale_max: float = 4.0  # ... at most this
-    dr_scale_n: int = 200  # readings in its running means
-    held_scale_min: float = 0.3  # ... and at least this while the receiver is held off
-    # tests
-    window_s: float = 10.0  # mean-NIS window
-    window_alpha: float = 1e-4  # false-alarm probability of one mean-NIS check
-    window_min_n: int = 5  # the mean-NIS test needs this many readings
-    window_corr_s: float = 1.0  # readings closer than this are not independent: N counts one per window_corr_s
-    drift_window_s: float = 2.0  # readings averaged in the coherent drift test
-    drift_gate: float = 13.82  # 2 dof, 99.9 %
-    hard_gate: float = 18.42  # 2 dof, 99.99 %: one reading against the filter
-    jump_gate: float = 9.0  # (3 sigma)^2: the largest update of the estimate after a loss or rejection
-    gap_s: float = 2.0  # readings further apart than this: the receiver was lost in between
-    reaccept_s: float = 10.0  # all tests passing this long before a rejected receiver is used again
-    # camera cross-check while GNSS is fused
-    camera_interval_s: float = 20.0  # a camera fix this often while the GNSS is healthy
-    camera_check_s: float = 3.0  # ... this soon when the guard is suspicious
-    suspect_gate: float = 5.99  # 2 dof, 95 %: drift or velocity statistic that makes the guard suspicious
-    # (and that a held-off receiver must stay below for reaccept_s)
-    camera_gate: float = 13.82  # 2 dof, 99.9 %: a camera fix disagrees with the GNSS
-    camera_disagree_n: int = 2  # disagreeing camera fixes in a row that reject the receiver
-    camera_match_s: float = 1.0  # GNSS readings this close to a camera capture are compared with it
 
 
 _RECENT_S = 10.0  # readings kept for camera fixes answered this late

@@ -15,15 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.ukf import fix_covariance
-
-if TYPE_CHECKING:  # pragma: no cover
-    from taco_mav.core.gnss_guard import GnssParams
 
 
 @dataclass(frozen=True, slots=True)

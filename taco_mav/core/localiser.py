@@ -95,15 +95,15 @@ class Localiser(GnssFusion):
         (from the start-up GNSS reading); heading_offset: UTM meridian convergence, rad, added to every compass
         heading; record: keep the online track, outcomes and smoother inputs (offline evaluation)."""
         self.p = params
-        self.frame_dt = 1.0 / params.frame_rate_hz
+        self.frame_dt = 1.0 / params.imu.frame_rate_hz
         self.record = record
-        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.allow_reverse, max_dt_s=params.max_dt_s,
+        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.imu.allow_reverse, max_dt_s=params.imu.max_dt_s,
                                  heading_offset=heading_offset)
-        self.highpass = HighPass(params.accel_highpass_hz)
+        self.highpass = HighPass(params.imu.accel_highpass_hz)
         self._interval_residual = MomentAccumulator()
-        s_xy, s_th = params.initial_sigma_xy_m, params.initial_sigma_theta_rad
+        s_xy, s_th = params.ukf.initial_sigma_xy_m, params.ukf.initial_sigma_theta_rad
         self.ukf = PlanarUkf(np.array([x, y, heading]), np.diag([s_xy**2, s_xy**2, s_th**2]),
-                             params.ukf_alpha, params.ukf_beta, params.ukf_kappa)
+                             params.ukf.alpha, params.ukf.beta, params.ukf.kappa)
         self.t = t0
         self._next_tick = t0 + self.frame_dt
         self._window = AnchorWindow()
@@ -112,7 +112,7 @@ class Localiser(GnssFusion):
         self._query_id = 0
         self._ready: FixQuery | None = None
         self._pending: _Pending | None = None
-        self._history: deque[_Tick] = deque(maxlen=max(2, int(math.ceil(params.history_s * params.frame_rate_hz)) + 2))
+        self._history: deque[_Tick] = deque(maxlen=max(2, int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz)) + 2))
         self._nodes = 0
         # Offline records (record=True): online track, smoother inputs, outcomes.
         self.track: list[tuple[float, float, float, float, float, float, float]] = []  # t, x, y, th, Pxx, Pxy, Pyy
@@ -166,9 +166,9 @@ class Localiser(GnssFusion):
         self._window = self._window.extend(inc.dt, inc.distance, tick.residual)
         d_div = math.hypot(self.ukf.x[0] - pre_x, self.ukf.x[1] - pre_y)
         p = self.p
-        terms = error_terms(self._window, d_div, p.gyro_arw, p.error_cross_k, p.error_along_k, p.error_divergence_k)
+        terms = error_terms(self._window, d_div, p.imu.gyro_arw, p.error_model.cross_k, p.error_model.along_k, p.error_model.divergence_k)
         self._predict(tick, terms)
-        self.ukf.update_heading(inc.theta_end, p.compass_sigma_rad)
+        self.ukf.update_heading(inc.theta_end, p.ukf.compass_sigma_rad)
         self._after_heading(tick)
         if tick.fix is not None:
             self.ukf.update_position(*tick.fix)
@@ -183,15 +183,15 @@ class Localiser(GnssFusion):
     def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
         """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
         p, inc = self.p, tick.inc
-        s_f, s_l = process_sigmas(terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
-        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
+        s_f, s_l = process_sigmas(terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
+        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
 
     def _odometry_sigma(self, tick: _Tick) -> float:
         """The smoother's isotropic odometry sigma for this frame, metres: 1/2 (sigma_fwd + sigma_lat) of the
         paper's process noise (Sec. III-G uses the filter's own noise)."""
         p = self.p
-        s_f, s_l = process_sigmas(tick.terms.epsilon, p.sigma_fwd_min_m, p.sigma_fwd_k, p.sigma_lat_min_m, p.sigma_lat_k)
+        s_f, s_l = process_sigmas(tick.terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
         return 0.5 * (s_f + s_l)
 
     def _after_heading(self, tick: _Tick) -> None:
@@ -206,7 +206,7 @@ class Localiser(GnssFusion):
     # ------------------------------------------------------------------ trigger and search
     def _maybe_trigger(self) -> None:
         if self._pending is not None:
-            if self.t - self._pending.issued_t < self.p.query_timeout_s:
+            if self.t - self._pending.issued_t < self.p.trigger.query_timeout_s:
                 return
             self._pending = None  # unanswered: drop it so the pipeline can ask again
         if self._ready is not None:
@@ -224,11 +224,11 @@ class Localiser(GnssFusion):
         """The paper's dual trigger and search (Sec. III-D): (reason, forward bias m, body offsets (K, 2) m),
         or None when no fix is due."""
         eps, p = self._terms.epsilon, self.p
-        reason = trigger_reason(eps, self.t - self._last_fix_t, p.trigger_epsilon_m, p.trigger_time_s)
+        reason = trigger_reason(eps, self.t - self._last_fix_t, p.trigger.epsilon_m, p.trigger.time_s)
         if reason is None:
             return None
-        bias = forward_bias(eps, p.forward_bias_k, p.forward_bias_cap_m) if p.forward_bias else 0.0
-        return reason.value, bias, cross_offsets(cross_spacing(eps, p.search_cross_k, p.cross_cap_m), p.multi_crop)
+        bias = forward_bias(eps, p.trigger.forward_bias_k, p.trigger.forward_bias_cap_m) if p.trigger.forward_bias else 0.0
+        return reason.value, bias, cross_offsets(cross_spacing(eps, p.trigger.cross_k, p.trigger.cross_cap_m), p.trigger.multi_crop)
 
     def poll_query(self) -> FixQuery | None:
         """The query the trigger produced, once (None when there is none). At most one is in flight."""
@@ -248,7 +248,7 @@ class Localiser(GnssFusion):
     def add_fix(self, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome:
         """Hand back the matcher's results for a query (same order as its crop centres; None for a crop that
         could not be matched, e.g. off the map). The fix is applied at its capture time (rewind, update,
-        replay) unless params.apply_on_arrival."""
+        replay) unless params.latency.apply_on_arrival."""
         q = self._take_pending(query_id, results)
         if isinstance(q, FixOutcome):
             return q
@@ -261,9 +261,9 @@ class Localiser(GnssFusion):
         psi = yaw_residual(best.R)
         if not (np.all(np.isfinite(xy)) and math.isfinite(psi) and math.isfinite(best.w) and best.w > 0):
             return self._log(FixOutcome(query_id, False, "nonfinite", q.capture_t, now, k, weights=weights))
-        naive = self.p.apply_on_arrival
+        naive = self.p.latency.apply_on_arrival
         self._last_fix_t = max(self._last_fix_t, now if naive else q.capture_t)
-        if self.p.yaw_gate and not passes_yaw_gate(best.R, self.p.yaw_residual_max_rad):
+        if self.p.gate.enabled and not passes_yaw_gate(best.R, self.p.gate.yaw_residual_max_rad):
             return self._log(FixOutcome(query_id, False, "yaw_gate", q.capture_t, now, k, xy, psi, weights=weights))
         s_f, s_l = self._fix_sigmas(best.w)
         tick = self._capture_tick(q)
@@ -276,14 +276,14 @@ class Localiser(GnssFusion):
         """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F); anisotropic:
         None for ukf.anisotropic, False for both the mean of the two."""
         p = self.p
-        return fix_sigmas(w, p.fix_fwd_num, p.fix_fwd_min_m, p.fix_fwd_max_m, p.fix_lat_num, p.fix_lat_min_m,
-                          p.fix_lat_max_m, p.anisotropic if anisotropic is None else anisotropic)
+        return fix_sigmas(w, p.ukf.fix_fwd_num, p.ukf.fix_fwd_min_m, p.ukf.fix_fwd_max_m, p.ukf.fix_lat_num, p.ukf.fix_lat_min_m,
+                          p.ukf.fix_lat_max_m, p.ukf.anisotropic if anisotropic is None else anisotropic)
 
     def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float,
               heading: tuple[float, float] | None = None) -> float:
         """Apply a fix (ENU m, body sigmas m; taco+: with the true heading it measures, (ENU rad, 1-sigma rad)) on
         arrival or at its capture frame `tick` (then required), record it for the smoother; returns the NIS."""
-        if self.p.apply_on_arrival:
+        if self.p.latency.apply_on_arrival:
             nis = self._apply_now(xy, s_f, s_l, tick, heading)
         else:
             assert tick is not None
@@ -300,13 +300,13 @@ class Localiser(GnssFusion):
         self._pending = None
         q = pending.query
         if not any(r is not None for r in results):
-            self._last_fix_t = max(self._last_fix_t, self.t if self.p.apply_on_arrival else q.capture_t)
+            self._last_fix_t = max(self._last_fix_t, self.t if self.p.latency.apply_on_arrival else q.capture_t)
             return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, self.t))
         return q
 
     def _capture_tick(self, q: FixQuery) -> _Tick | None:
         """The history frame a fix for `q` applies at: the latest (on arrival) or the capture frame."""
-        if self.p.apply_on_arrival:
+        if self.p.latency.apply_on_arrival:
             return self._history[-1] if self._history else None
         return next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
 

@@ -52,7 +52,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         self.q = params.plus
         super().__init__(params, t0, x, y, heading, speed, record, heading_offset)
         self.pre.gyro_heading = self.q.gyro_heading
-        q, s_xy, s_th = self.q, params.initial_sigma_xy_m, params.initial_sigma_theta_rad
+        q, s_xy, s_th = self.q, params.ukf.initial_sigma_xy_m, params.ukf.initial_sigma_theta_rad
         var = [s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2,
                q.compass_bias_sigma_rad**2][:n_states(q)]
         g = params.map_georef_sigma_m  # the map's georeferencing offset as two more states (ukf.py)
@@ -60,8 +60,8 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
             if len(var) != 6:
                 raise ValueError("map.georef_sigma_m > 0 needs the compass-bias state (plus.compass_bias_sigma_rad > 0)")
             var += [g * g, g * g]
-        self.ukf = PlanarUkf(np.array([x, y, heading] + [0.0] * (len(var) - 3)), np.diag(var), params.ukf_alpha,
-                             params.ukf_beta, params.ukf_kappa)
+        self.ukf = PlanarUkf(np.array([x, y, heading] + [0.0] * (len(var) - 3)), np.diag(var), params.ukf.alpha,
+                             params.ukf.beta, params.ukf.kappa)
         self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2,
                                         q.zupt_accel_mean_max_mps2)
         self.unaided = UnaidedTrack(q.guard_k, q.guard_floor_m, q.imu_accel_sigma_mps2)
@@ -108,7 +108,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         if fresh:
             self.still.add(sample.t, sample.accel_frd, sample.gyro_frd, self.pre.accel_fwd)
             if self.q.guard:
-                self.unaided.add(sample.t, self.pre.accel_fwd, self.pre.theta, self.p.allow_reverse)
+                self.unaided.add(sample.t, self.pre.accel_fwd, self.pre.theta, self.p.imu.allow_reverse)
 
     def set_drive_command(self, t: float, driving: bool) -> None:
         """What the autopilot commands at time t (s): True while it drives (armed with a throttle output), False
@@ -179,7 +179,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""
         old = self.pre.speed
         new = old + float(self.ukf.x[3])
-        if not self.p.allow_reverse:
+        if not self.p.imu.allow_reverse:
             new = max(new, 0.0)
         applied = new - old
         if applied:
@@ -201,7 +201,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         if state is LockState.LOST:
             rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
             return self._planned("recover", hex_offsets(rings, q.grid_spacing_m))
-        arm = cross_offsets(cross_arm(sig, q), self.p.multi_crop)
+        arm = cross_offsets(cross_arm(sig, q), self.p.trigger.multi_crop)
         if any(self.t - h[1] <= q.confirm_window_s for h in self._held):
             return self._planned("verify", arm)  # a held answer waits for a second one
         if state is LockState.CONFIRMING:
@@ -281,10 +281,10 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         w = np.array(weights)
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
         with np.errstate(invalid="ignore"):
-            yaw_ok = (np.abs(psi) <= p.yaw_residual_max_rad) | (not p.yaw_gate)
+            yaw_ok = (np.abs(psi) <= p.gate.yaw_residual_max_rad) | (not p.gate.enabled)
         usable = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
         c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m, qp.consensus_weight_power)
-        self._last_fix_t = max(self._last_fix_t, now if p.apply_on_arrival else q.capture_t)
+        self._last_fix_t = max(self._last_fix_t, now if p.latency.apply_on_arrival else q.capture_t)
         if c is None:
             reason = "nonfinite" if not finite.any() else ("yaw_gate" if not (finite & yaw_ok).any() else "weak")
             self._failed(reason, 0.0)

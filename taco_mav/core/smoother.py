@@ -18,6 +18,8 @@ import numpy as np
 from scipy.signal import savgol_filter
 from scipy.spatial import cKDTree
 
+from taco_mav.core.params import SmootherParams
+
 
 @dataclass(frozen=True)
 class FixNode:
@@ -27,22 +29,6 @@ class FixNode:
     xy: np.ndarray
     sigma_fwd: float
     sigma_lat: float
-
-
-@dataclass(frozen=True)
-class SmootherParams:
-    """Sec. III-G constants (see config.SmootherConfig for the citations)."""
-
-    origin_sigma: float = 0.01
-    nonholonomic_sigma_m: float = 1.0
-    lc_max_chord_m: float = 50.0
-    lc_min_frame_gap: int = 30
-    lc_min_path_ratio: float = 5.0
-    lc_sigma_floor_m: float = 0.5
-    lm_max_iterations: int = 100
-    lm_relative_tolerance: float = 1e-5
-    savgol_window: int = 15
-    savgol_order: int = 3
 
 
 @dataclass(frozen=True)

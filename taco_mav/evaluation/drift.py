@@ -204,7 +204,7 @@ def measure_drift(drive: Any, horizons_s: tuple[float, ...] = HORIZONS_S, stride
 
 
 def report_text(report: DriftReport, profile_plus: Any, profile_name: str) -> str:
-    """A plain-text table of `report` beside what the profile's `plus:` section (a PlusConfig) predicts, a
+    """A plain-text table of `report` beside what the profile's `plus:` section (a PlusParams) predicts, a
     verdict per term, and the fitted values as a `plus:` snippet."""
     h = np.array(report.horizons_s)
     pv = speed_model_std(h, profile_plus.q_speed_mps, profile_plus.q_bias_mps2)

@@ -182,7 +182,8 @@ class Anchor:
             use_course = self.start_course is not None and self.start_speed > 1.0
             psi = self.start_course if use_course else attitude_yaw
             heading = math.remainder(math.pi / 2 - psi + conv, 2 * math.pi)
-        params = self.params if sigma_xy is None else dataclasses.replace(self.params, initial_sigma_xy_m=sigma_xy)
+        params = self.params if sigma_xy is None else dataclasses.replace(
+            self.params, ukf=dataclasses.replace(self.params.ukf, initial_sigma_xy_m=sigma_xy))
         loc = make_localiser(params, t, xy[0], xy[1], heading, self.start_speed if speed is None else speed,
                              record=False, heading_offset=conv)
         self.generation += 1
@@ -196,7 +197,7 @@ class Anchor:
         undercut)."""
         est = loc.estimate()
         return self.localiser(t_new, attitude_yaw, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
-                              max(est.sigma_h, loc.filter_sigma_h, self.params.initial_sigma_xy_m))
+                              max(est.sigma_h, loc.filter_sigma_h, self.params.ukf.initial_sigma_xy_m))
 
     def carried(self, loc: Localiser, t_last: float, t_new: float) -> Carried:
         """No IMU from t_last to t_new: the estimate carried on at its speed and heading, its 1-sigma grown
@@ -206,5 +207,5 @@ class Anchor:
         d = speed * (t_new - est.t)
         xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
         sigma = max(stall_sigma(max(est.sigma_h, loc.filter_sigma_h), speed, t_new - t_last),
-                    self.params.initial_sigma_xy_m)
+                    self.params.ukf.initial_sigma_xy_m)
         return Carried(xy, est.theta, speed, sigma, d)
