@@ -5,7 +5,7 @@ one square in metres. Images: every .png/.jpg/.jpeg/.bmp/.tif/.tiff in a folder,
 camera at the resolution it will stream, the board filling different parts of the frame (corners included)
 at different tilts. Corners: cv2.findChessboardCorners + cv2.cornerSubPix; then cv2.calibrateCamera
 (plumb_bob: k1, k2, p1, p2, k3) or cv2.fisheye.calibrate (fisheye: k1..k4). The result is written as OpenCV
-FileStorage YAML (`taco_mav.camera_calibration.write_calibration`), the file `camera.calibration` reads.
+FileStorage YAML (`taco_mav.camera.calibration.write_calibration`), the file `camera.calibration` reads.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from taco_mav.camera_calibration import LensCalibration, LensModel, write_calibration
+from taco_mav.camera.calibration import LensCalibration, LensModel, write_calibration
 from taco_mav.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """`taco-mav demo`: the whole live path in one command, on loopback.
 
 A small built-in synthetic world (fixed seed, ~1 km; reused when already in the out folder) is played by the
-simulated ArduPilot rover (`taco_mav.sim.Simulator`) to the real daemon (`taco_mav.link.daemon.Daemon`, profile
+simulated ArduPilot rover (`taco_mav.sim.Simulator`) to the real daemon (`taco_mav.daemon.daemon.Daemon`, profile
 `synthetic`, classical matcher on frames rendered at the SIMSTATE pose), both as threads of this process talking
 MAVLink over UDP on 127.0.0.1, in lockstep at 8x real time (the daemon runs on the simulator's clock). GNSS is
 denied after the start-up fix. The world lives in `out/world` (shared by every run); each run writes into
@@ -104,9 +104,9 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     out = Path(out)
     run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
     from taco_mav.config import Estimator
+    from taco_mav.daemon.daemon import Daemon, DaemonOptions
     from taco_mav.datasets.synthetic import register_world_camera
-    from taco_mav.link.connection import free_udp_port
-    from taco_mav.link.daemon import Daemon, DaemonOptions
+    from taco_mav.mavlink.connection import free_udp_port
     from taco_mav.sim import Simulator, write_results
     from taco_mav.sim.plot import plot_gps_input
 

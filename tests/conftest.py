@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,8 @@ import pytest
 import taco_mav.datasets.synthetic  # noqa: F401 - registers the `world:DIR` camera scheme (camera.open_camera)
 
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw"
+# the development tools (tools/: the SITL harnesses, the appearance-gap maker gap.py) import as top-level modules
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 
 @pytest.fixture(scope="session")

@@ -19,17 +19,17 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 import rasterio
+from helpers import SimDrive, simulate
 
 from taco_mav.config import Profile, localiser_params, profile_from_dict
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
-from taco_mav.link.daemon import DaemonOptions
-from taco_mav.link.encoders import Origin
-from taco_mav.link.eventlog import EventLog
-from taco_mav.link.fixes import FixPipeline
-from taco_mav.link.timesync import ClockMap
-from helpers import SimDrive, simulate
+from taco_mav.daemon.daemon import DaemonOptions
+from taco_mav.daemon.eventlog import EventLog
+from taco_mav.daemon.fixes import FixPipeline
+from taco_mav.mavlink.encoders import Origin
+from taco_mav.mavlink.timesync import ClockMap
 
 ORIGIN_LAT, ORIGIN_LON = 49.0, 8.4
 CAMERA = {"width_px": 160, "height_px": 120, "cx": 80.0, "cy": 60.0, "fx": 100.0, "fy": 100.0}

@@ -24,10 +24,11 @@ from collections import Counter
 from dataclasses import asdict, dataclass
 from typing import Any, Callable
 
-from taco_mav.config import Profile, profile_from_dict
-from taco_mav.link.connection import free_udp_port
-from taco_mav.link.daemon import Daemon, DaemonOptions
 from fuzz_frames import MUTATIONS, AutopilotStream, Mutator, corrupt_imu, m
+
+from taco_mav.config import Profile, profile_from_dict
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
+from taco_mav.mavlink.connection import free_udp_port
 
 log = logging.getLogger(__name__)
 

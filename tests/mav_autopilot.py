@@ -29,7 +29,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.geo import UtmProjector  # noqa: E402
-from taco_mav.link.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
+from taco_mav.mavlink.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
 
 m = mavutil.mavlink
 

@@ -11,12 +11,11 @@ from typing import Any, Callable
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
-
 from pymavlink.dialects.v20 import ardupilotmega as apm  # noqa: E402
 
 from taco_mav.geo import gps_week_ms  # noqa: E402
-from taco_mav.link.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
-from taco_mav.link.tlog import TlogWriter  # noqa: E402
+from taco_mav.mavlink.connection import free_udp_port  # noqa: E402,F401 (re-exported for the tests)
+from taco_mav.mavlink.tlog import TlogWriter  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.source import SimDrive  # noqa: E402
 

@@ -8,7 +8,7 @@ import pytest
 from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus_params import PlusParams
-from taco_mav.link.anchor import Anchor
+from taco_mav.daemon.anchor import Anchor
 
 
 def test_first_heading_from_course_when_moving_else_from_attitude():

@@ -6,15 +6,14 @@ import dataclasses
 import math
 
 import numpy as np
-
 from helpers import OracleMatcher
+from test_localiser import _drive
+from test_localiser_plus import PLUS, answers_at, run_plus
+
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.lock import LockState
 from taco_mav.core.types import MatchResult
 from taco_mav.core.ukf import fix_covariance
-from test_localiser import _drive
-from test_localiser_plus import PLUS, answers_at, run_plus
-
 
 CONFIRM = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=2.0, recover_confirm=True,
                                                              confirm_answers=3))

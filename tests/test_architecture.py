@@ -6,8 +6,9 @@ still a dependency), but not under `if TYPE_CHECKING:` (annotations only). The r
 - layers: a module imports only modules of its own layer or below (`LAYERS`, bottom first);
 - core imports nothing of taco_mav but core and errors, and no I/O library (sockets, files, YAML, MAVLink,
   images, plots, progress bars);
-- link imports nothing of datasets/sim/evaluation, neither directly nor through the top-level modules it uses
-  (camera, config, ...); exceptions would be listed in `KNOWN_UPWARD` (there are none);
+- mavlink (the protocol) sits below daemon (the application), and neither imports anything of
+  datasets/sim/evaluation, directly or through the modules it uses (camera, config, ...); exceptions would be
+  listed in `KNOWN_UPWARD` (there are none);
 - no import cycle between modules;
 - nothing imports the CLI; no test tooling in the product package; the split modules stay small.
 """
@@ -28,9 +29,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "taco_mav"
 LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"", "errors", "geo", "timestamps", "progress"}),  # "" = taco_mav/__init__.py
     frozenset({"core"}),
-    frozenset({"config", "camera_geometry", "camera_calibration", "camera_horizon", "camera"}),
+    frozenset({"config", "camera"}),
     frozenset({"cvgl"}),
-    frozenset({"link"}),
+    frozenset({"mavlink"}),
+    frozenset({"daemon"}),
     frozenset({"datasets"}),
     frozenset({"evaluation"}),
     frozenset({"sim"}),
@@ -40,13 +42,13 @@ LAYERS: tuple[frozenset[str], ...] = (
 CORE_MAY_IMPORT = ("taco_mav.core", "taco_mav.errors")
 IO_LIBRARIES = frozenset({"pymavlink", "rasterio", "cv2", "serial", "yaml", "socket", "matplotlib", "tqdm", "PIL",
                           "torch", "pyproj", "requests", "urllib", "http", "subprocess", "sqlite3"})
-LINK_MUST_NOT_REACH = ("taco_mav.datasets", "taco_mav.sim", "taco_mav.evaluation", "taco_mav.bench",
+LIVE_MUST_NOT_REACH = ("taco_mav.datasets", "taco_mav.sim", "taco_mav.evaluation", "taco_mav.bench",
                        "taco_mav.reliability", "taco_mav.demo", "taco_mav.cli")
 # Tolerated upward imports, each (importer, imported prefix, the class the import must sit in; "" outside
 # classes). Empty: the last one (camera.WorldSource building datasets/synthetic's renderers) went when WorldSource
 # moved to datasets/synthetic/world_camera.py and `open_camera` took the `world:` scheme from a registry.
 KNOWN_UPWARD: tuple[tuple[str, str, str], ...] = ()
-SPLIT_MODULES_MAX_LINES = 350  # config/ and link/daemon*.py were split to ~300 lines each (issue 16)
+SPLIT_MODULES_MAX_LINES = 350  # config/ and daemon/daemon*.py were split to ~300 lines each (issue 16)
 
 
 @dataclass(frozen=True)
@@ -173,21 +175,21 @@ def test_core_imports_no_io_and_nothing_above_it() -> None:
     assert not io, "core imports an I/O library:\n" + "\n".join(io)
 
 
-def test_link_does_not_reach_datasets_sim_or_evaluation() -> None:
-    """Directly, or through any module link imports (transitively), save the known exception."""
+def test_mavlink_and_daemon_do_not_reach_datasets_sim_or_evaluation() -> None:
+    """Directly, or through any module they import (transitively), save the known exceptions."""
     bad: list[str] = []
-    for start in (n for n in MODULES if _component(n) == "link"):
+    for start in (n for n in MODULES if _component(n) in ("mavlink", "daemon")):
         seen, stack = {start}, [start]
         while stack:
             for imp in IMPORTS[stack.pop()]:
                 if not _internal(imp) or imp.target in seen or _known(imp):
                     continue
-                if imp.target.startswith(LINK_MUST_NOT_REACH):
+                if imp.target.startswith(LIVE_MUST_NOT_REACH):
                     bad.append(f"{start}: {_where(imp)}")
                     continue
                 seen.add(imp.target)
                 stack.append(imp.target)
-    assert not bad, "link reaches a layer above it:\n" + "\n".join(sorted(set(bad)))
+    assert not bad, "mavlink / daemon reach a layer above them:\n" + "\n".join(sorted(set(bad)))
 
 
 def test_no_import_cycles() -> None:
@@ -210,7 +212,7 @@ def test_no_test_tooling_in_the_package() -> None:
     assert not [n for n in MODULES if n.rsplit(".", 1)[-1].startswith(("fuzz", "test_", "conftest"))]
 
 
-@pytest.mark.parametrize("pattern", ["config/*.py", "link/daemon*.py"])
+@pytest.mark.parametrize("pattern", ["config/*.py", "daemon/daemon*.py"])
 def test_split_modules_stay_small(pattern: str) -> None:
     sizes = {p.name: len(p.read_text().splitlines()) for p in PACKAGE.glob(pattern)}
     assert sizes and max(sizes.values()) <= SPLIT_MODULES_MAX_LINES, sizes

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from taco_mav.camera_calibration import LensCalibration, LensModel, load_calibration
+from taco_mav.camera.calibration import LensCalibration, LensModel, load_calibration
 from taco_mav.cli import main
 
 BOARD, SQUARE, TEX_PX = (9, 6), 0.025, 40  # inner corners, metres per square, texture pixels per square

@@ -13,10 +13,10 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from taco_mav import camera as camera_mod
-from taco_mav.camera import ClockDomain, FolderSource, VideoSource, open_camera, register_camera_scheme
-from taco_mav.camera_calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera import sources as camera_mod
+from taco_mav.camera.calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.sources import ClockDomain, FolderSource, VideoSource, open_camera, register_camera_scheme
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.synthetic.world_camera import WorldSource, register_world_camera
 from taco_mav.errors import ConfigError
@@ -114,7 +114,7 @@ def test_world_source_renders_at_pose(tmp_path: Path) -> None:
 
 def test_world_scheme_unregistered_is_one_line_error_then_registered_opens(tmp_path: Path,
                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    """camera.py knows no world renderer: `world:` works only once datasets.synthetic registered it."""
+    """camera/sources.py knows no world renderer: `world:` works only once datasets.synthetic registered it."""
     _world(tmp_path)
     monkeypatch.setattr(camera_mod, "_SCHEMES", {})  # as if taco_mav.datasets.synthetic were never imported
     with pytest.raises(ConfigError) as err:

@@ -14,10 +14,10 @@ import yaml
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import textured_mosaic, write_geotiff
-from taco_mav.camera import FrameGuard, FrameRejected
-from taco_mav.camera_calibration import (FrameRectifier, LensCalibration, LensModel, load_calibration, pinhole_matrix,
+from taco_mav.camera.calibration import (FrameRectifier, LensCalibration, LensModel, load_calibration, pinhole_matrix,
                                          scale_matrix, write_calibration)
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.sources import FrameGuard, FrameRejected
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig, load_profile, profile_from_dict, profile_to_dict
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
@@ -275,14 +275,15 @@ def test_fix_pipeline_undistorts_a_calibrated_world_camera(world) -> None:
     """The daemon's wiring: profile camera.calibration -> world camera drawn through the lens (raw 1242 x 375
     distorted frames) -> frame guard undistorts -> GroundFrame of the pinhole model -> the profile's classical
     matcher finds the true offset."""
-    from taco_mav.core.types import FixQuery
-    from taco_mav.geo import UtmProjector
-    from taco_mav.link.daemon import DaemonOptions
-    from taco_mav.link.decoders import SimPose
-    from taco_mav.link.eventlog import EventLog
-    from taco_mav.link.fixes import FixPipeline
-    from taco_mav.link.timesync import ClockMap
     from fault_helpers import Counters
+
+    from taco_mav.core.types import FixQuery
+    from taco_mav.daemon.daemon import DaemonOptions
+    from taco_mav.daemon.eventlog import EventLog
+    from taco_mav.daemon.fixes import FixPipeline
+    from taco_mav.geo import UtmProjector
+    from taco_mav.mavlink.decoders import SimPose
+    from taco_mav.mavlink.timesync import ClockMap
 
     _, _, cam_cfg, smap = world
     folder = Path(cam_cfg.calibration).parent

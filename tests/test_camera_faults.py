@@ -13,15 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fault_helpers import (ORIGIN_LAT, ORIGIN_LON, noise_image, run_pipeline, small_camera_profile, straight_drive,
+                           write_folder, write_geotiff)
+from mav_autopilot import MiniAutopilot, free_udp_port
 
-from taco_mav.camera import FolderSource, FrameGuard, FrameRejected, VideoSource
+from taco_mav.camera.sources import FolderSource, FrameGuard, FrameRejected, VideoSource
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.errors import ConfigError
 from taco_mav.geo import UtmProjector
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.encoders import Origin
-from fault_helpers import (ORIGIN_LAT, ORIGIN_LON, noise_image, run_pipeline, small_camera_profile,
-                           straight_drive, write_folder, write_geotiff)
-from mav_autopilot import MiniAutopilot, free_udp_port
+from taco_mav.mavlink.encoders import Origin
 
 DRIVE_S = 12.0
 
@@ -128,7 +128,7 @@ def test_misconfigured_pitch_warns_by_statustext(tmp_path: Path) -> None:
     from rasterio.transform import from_origin
 
     from taco_mav.bench.classical import textured_mosaic
-    from taco_mav.camera_geometry import GroundCamera
+    from taco_mav.camera.geometry import GroundCamera
     from taco_mav.datasets.synthetic.render import GroundRenderer
 
     profile = small_camera_profile()

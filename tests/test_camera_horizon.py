@@ -11,9 +11,9 @@ import pytest
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import textured_mosaic
-from taco_mav.camera_calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
-from taco_mav.camera_geometry import GroundCamera
-from taco_mav.camera_horizon import HorizonCheck, horizon_row, mount_from_marks
+from taco_mav.camera.calibration import FrameRectifier, LensCalibration, LensModel, pinhole_matrix
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.horizon import HorizonCheck, horizon_row, mount_from_marks
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.synthetic.render import GroundRenderer, LensRenderer
 from taco_mav.errors import ConfigError

@@ -7,15 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from gap import MapGap, alter_mosaic, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import confidence_figures, confidence_samples, textured_mosaic, write_geotiff
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import GroundFrame
-from taco_mav.cvgl.classical import (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, W_CALIBRATION, ClassicalMatcher,
-                                     psr_weight)
-from taco_mav.cvgl.gap import MapGap, alter_mosaic, occlude_frame
+from taco_mav.cvgl.classical import PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, W_CALIBRATION, ClassicalMatcher, psr_weight
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.render import GroundRenderer
 

@@ -69,7 +69,7 @@ def test_log_levels(flags: tuple[bool, int, bool], command: str, level: int) -> 
         def shown(name: str, levelno: int) -> bool:
             return levelno >= handler.level and handler.filter(logging.LogRecord(name, levelno, "", 0, "m", (), None))
 
-        assert shown("taco_mav.link.daemon", level) and not shown("taco_mav.link.daemon", level - 10)
+        assert shown("taco_mav.daemon.daemon", level) and not shown("taco_mav.daemon.daemon", level - 10)
         assert shown("rasterio._env", logging.ERROR)
         assert shown("rasterio._env", logging.WARNING) == (level <= logging.WARNING)
         assert shown("rasterio._env", logging.INFO) == flags[2]
@@ -216,7 +216,7 @@ def test_demo_checks_speed_before_any_work(tmp_path: Path) -> None:
 
 
 def test_session_dir_is_new_for_every_session(tmp_path: Path) -> None:
-    from taco_mav.link.appendlog import session_dir
+    from taco_mav.mavlink.appendlog import session_dir
 
     now = datetime(2026, 1, 24, 8, 15, 0, tzinfo=timezone.utc)
     first = session_dir(tmp_path / "logs", now)

@@ -1,10 +1,9 @@
-import dataclasses
 import math
 
 import pytest
 
-from taco_mav.config import (Estimator, Profile, load_profile, localiser_params, profile_from_dict,
-                             profile_to_dict, replace_in)
+from taco_mav.config import (Estimator, Profile, load_profile, localiser_params, profile_from_dict, profile_to_dict,
+                             replace_in)
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus_params import PlusParams
 from taco_mav.errors import ConfigError

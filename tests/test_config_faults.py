@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-
 from mav_autopilot import free_udp_port
+
 from taco_mav.config import PROFILE_DIR
 
 PROFILES = {  # case -> (YAML text or None for a missing file, what the error line must contain besides the file)

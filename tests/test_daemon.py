@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mav_autopilot import MiniAutopilot, free_udp_port
 from pymavlink import mavutil
 
 from taco_mav.config import PROFILE_DIR, Profile, load_profile, profile_from_dict, profile_to_dict
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.geo import UtmProjector
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from mav_autopilot import MiniAutopilot, free_udp_port
 
 DRIVE_S = 5.0
 

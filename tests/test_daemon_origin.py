@@ -24,7 +24,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
 from taco_mav.config import Estimator, load_profile, profile_from_dict, replace_in
-from taco_mav.link.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.sim import Simulator
 from tests.sim_helpers import free_udp_port
 

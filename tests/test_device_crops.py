@@ -14,17 +14,19 @@ import rasterio
 
 torch = pytest.importorskip("torch", reason="the fg2 extra (torch) is not installed")
 
-from taco_mav.camera_geometry import GroundCamera  # noqa: E402
+from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.config import CameraConfig, Fg2Config  # noqa: E402
 from taco_mav.core.types import FixQuery  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
-from taco_mav.cvgl.device_crops import DeviceCropper, GeometryMatcher  # noqa: E402
-from taco_mav.cvgl.service import uses_device_crops  # noqa: E402
-from taco_mav.cvgl.fg2 import Fg2Matcher  # noqa: E402
-from taco_mav.cvgl.fg2_shim import build_random_model  # noqa: E402
-from taco_mav.cvgl.fg2_tiny import TinyFg2  # noqa: E402
+from taco_mav.cvgl.fg2.adapter import Fg2Matcher  # noqa: E402
+from taco_mav.cvgl.fg2.device_crops import DeviceCropper, GeometryMatcher  # noqa: E402
+from taco_mav.cvgl.fg2.shim import build_random_model  # noqa: E402
+from taco_mav.cvgl.fg2.tiny import TinyFg2  # noqa: E402
 from taco_mav.cvgl.satellite import SatelliteMap  # noqa: E402
-from taco_mav.cvgl.service import FixService  # noqa: E402
+from taco_mav.cvgl.service import (
+    FixService,  # noqa: E402
+    uses_device_crops,  # noqa: E402
+)
 from taco_mav.errors import OffMapError  # noqa: E402
 
 DEVICE = os.environ.get("FG2_DEVICE", "cpu")

@@ -1,4 +1,4 @@
-"""Whether the autopilot drives (link/drive.py), from real HEARTBEAT messages as ArduPilot and PX4 send them."""
+"""Whether the autopilot drives (daemon/drive.py), from real HEARTBEAT messages as ArduPilot and PX4 send them."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
-from taco_mav.link.drive import DRIVE_THROTTLE_MIN_PCT, DriveCommand  # noqa: E402
+from taco_mav.daemon.drive import DRIVE_THROTTLE_MIN_PCT, DriveCommand  # noqa: E402
 
 ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED | mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from taco_mav.bench.emulator import sample
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, EmulatorConfig
-from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.core.types import MatchResult
+from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.cvgl.emulator import EmulatorMatcher, Outcome, lognormal_params
 from taco_mav.errors import ConfigError
 

@@ -10,14 +10,14 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the fg2 extra (torch) is not installed")
 
-from taco_mav.camera_geometry import GroundCamera  # noqa: E402
+from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.config import CameraConfig, Fg2Config  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
-from taco_mav.cvgl.fg2 import Fg2Matcher, _to_result, load_model, pixel_from_level  # noqa: E402
-from taco_mav.cvgl.fg2_tiny import TinyFg2, save_tiny  # noqa: E402
+from taco_mav.cvgl.fg2.adapter import Fg2Matcher, _to_result, load_model, pixel_from_level  # noqa: E402
+from taco_mav.cvgl.fg2.tiny import TinyFg2, save_tiny  # noqa: E402
 from taco_mav.errors import MatcherError  # noqa: E402
 
-TINY = "taco_mav.cvgl.fg2_tiny:build_model"
+TINY = "taco_mav.cvgl.fg2.tiny:build_model"
 CAMERA = GroundCamera.from_config(CameraConfig(), scale=0.25)
 
 

@@ -9,7 +9,8 @@ import pytest
 
 pytest.importorskip("torch", reason="the fg2 extra (torch) is not installed")
 
-from taco_mav.bench import fg2 as bench_fg2, run_bench  # noqa: E402
+from taco_mav.bench import fg2 as bench_fg2  # noqa: E402
+from taco_mav.bench import run_bench
 
 FAKE = Path(__file__).parent / "fake_fg2"
 

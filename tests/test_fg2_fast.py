@@ -18,13 +18,13 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the fg2 extra (torch) is not installed")
 
-from taco_mav.camera_geometry import GroundCamera  # noqa: E402
+from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.config import CameraConfig, Fg2Config  # noqa: E402
-from taco_mav.cvgl import fg2_fast  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
-from taco_mav.cvgl.fg2 import Fg2Matcher, pixel_from_level  # noqa: E402
-from taco_mav.cvgl.fg2_mmcv import MultiScaleDeformableAttention, multi_scale_deformable_attn_pytorch  # noqa: E402
-from taco_mav.cvgl.fg2_shim import build_random_model  # noqa: E402
+from taco_mav.cvgl.fg2 import fast as fg2_fast  # noqa: E402
+from taco_mav.cvgl.fg2.adapter import Fg2Matcher, pixel_from_level  # noqa: E402
+from taco_mav.cvgl.fg2.mmcv import MultiScaleDeformableAttention, multi_scale_deformable_attn_pytorch  # noqa: E402
+from taco_mav.cvgl.fg2.shim import build_random_model  # noqa: E402
 
 FAKE = Path(__file__).parent / "fake_fg2"
 CAMERA = GroundCamera.from_config(CameraConfig(), scale=0.25)

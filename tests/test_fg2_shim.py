@@ -20,12 +20,12 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="the fg2 extra (torch) is not installed")
 
-from taco_mav.camera_geometry import GroundCamera  # noqa: E402
+from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.config import CameraConfig, Fg2Config, Profile  # noqa: E402
 from taco_mav.cvgl.base import Crop, GroundFrame  # noqa: E402
-from taco_mav.cvgl.fg2 import Fg2Matcher, load_model  # noqa: E402
-from taco_mav.cvgl.fg2_published import PublishedFg2  # noqa: E402
-from taco_mav.cvgl.fg2_shim import DINOV2_FILE, _load_cvm, fg2_import_scope, read_settings  # noqa: E402
+from taco_mav.cvgl.fg2.adapter import Fg2Matcher, load_model  # noqa: E402
+from taco_mav.cvgl.fg2.published import PublishedFg2  # noqa: E402
+from taco_mav.cvgl.fg2.shim import DINOV2_FILE, _load_cvm, fg2_import_scope, read_settings  # noqa: E402
 from taco_mav.cvgl.registry import make_matcher  # noqa: E402
 from taco_mav.errors import MatcherError  # noqa: E402
 

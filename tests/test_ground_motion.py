@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rasterio.transform import from_origin
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.cvgl.ground_motion import GroundMotion, HeadingHistory
 from taco_mav.datasets.synthetic.layout import Building, Scene

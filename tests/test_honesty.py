@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import OracleMatcher, SimDrive, simulate
+
 from taco_mav.config import localiser_params, profile_from_dict
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.search import body_to_world

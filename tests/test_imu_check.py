@@ -6,8 +6,8 @@ import dataclasses
 import math
 
 import numpy as np
-
 from helpers import OracleMatcher, simulate
+
 from taco_mav.core.imu_check import UnaidedTrack
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.params import LocaliserParams

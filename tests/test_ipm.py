@@ -9,7 +9,7 @@ import pytest
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import textured_mosaic
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.cvgl.ipm import BevProjector
 from taco_mav.datasets.synthetic.render import GroundRenderer

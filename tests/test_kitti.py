@@ -14,16 +14,9 @@ import rasterio
 from affine import Affine
 from scipy.spatial.transform import Rotation
 
-from taco_mav.datasets.kitti import (
-    ODOMETRY_SEQUENCES,
-    OXTS,
-    OXTS_FIELDS,
-    KittiDrive,
-    default_kitti_root,
-    load_drive,
-    load_sequence,
-)
 from taco_mav.config import load_profile
+from taco_mav.datasets.kitti import (ODOMETRY_SEQUENCES, OXTS, OXTS_FIELDS, KittiDrive, default_kitti_root, load_drive,
+                                     load_sequence)
 from taco_mav.datasets.kitti_io import camera_position_frd_m
 from taco_mav.errors import DataError
 from taco_mav.geo import UtmProjector, enu_from_ned_yaw, grid_convergence, wrap_angle

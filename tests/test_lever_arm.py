@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import simulate
 from mav_autopilot import MiniAutopilot, free_udp_port
-from taco_mav.camera_geometry import GroundCamera
+
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, EmulatorConfig, Estimator, load_profile, profile_from_dict, replace_in
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.params import LocaliserParams
@@ -97,8 +97,8 @@ def test_kitti_04_same_ate_with_the_profiles_lever_arm(kitti_root: Path, estimat
 def test_daemon_warns_when_the_autopilot_antenna_differs(tmp_path: Path) -> None:
     """The profile sends the reference point (antenna_frd_m zero) while the autopilot has GPS1_POS_X/Y/Z =
     0.5, 0.1, -0.3: the daemon asks for them, logs, writes a param_check event and a STATUSTEXT warning."""
-    from taco_mav.link.daemon import Daemon, DaemonOptions
-    from taco_mav.link.mavconst import SEV_WARNING
+    from taco_mav.daemon.daemon import Daemon, DaemonOptions
+    from taco_mav.mavlink.mavconst import SEV_WARNING
 
     port = free_udp_port()
     profile = profile_from_dict({"matcher": "emulator"})

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taco_mav.link.scheduler import AutopilotPeriodic, Periodic
-from taco_mav.link.timesync import ClockMap, ClockRate
+from taco_mav.daemon.scheduler import AutopilotPeriodic, Periodic
+from taco_mav.mavlink.timesync import ClockMap, ClockRate
 from tests.test_live import run_live
 
 

@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
+from mav_autopilot import free_udp_port  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError  # noqa: E402
-from taco_mav.link.connection import Link, parse_connection  # noqa: E402
-from taco_mav.link.requests import ekf3_gate_warnings  # noqa: E402
-from mav_autopilot import free_udp_port  # noqa: E402
+from taco_mav.mavlink.connection import Link, parse_connection  # noqa: E402
+from taco_mav.mavlink.requests import ekf3_gate_warnings  # noqa: E402
 
 
 def test_parse_connection() -> None:

@@ -9,12 +9,11 @@ import os
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
-
 import numpy as np  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from taco_mav.link.decoders import G0, MAX_ATTITUDE_CARRY_S, Decoders, euler_rates  # noqa: E402
+from taco_mav.mavlink.decoders import G0, MAX_ATTITUDE_CARRY_S, Decoders, euler_rates  # noqa: E402
 
 
 def wire(build):

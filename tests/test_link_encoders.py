@@ -1,4 +1,4 @@
-"""Output encoders: encode with taco_mav.link.encoders, decode the bytes with pymavlink, check fields and units."""
+"""Output encoders: encode with taco_mav.mavlink.encoders, decode the bytes with pymavlink, check fields and units."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from taco_mav.config import OutputConfig  # noqa: E402
 from taco_mav.core.types import Estimate  # noqa: E402
-from taco_mav.link import encoders  # noqa: E402
+from taco_mav.mavlink import encoders  # noqa: E402
 
 CFG = OutputConfig()
 ORIGIN = encoders.Origin.from_latlon(49.0, 8.4, 115.0)

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mav_autopilot import MiniAutopilot, Received, free_udp_port
 
 from taco_mav.config import profile_from_dict
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.health import LinkWatch, stall_sigma
 from taco_mav.geo import UtmProjector
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.health import LinkWatch, stall_sigma
-from mav_autopilot import MiniAutopilot, Received, free_udp_port
 
 OUTAGE = (2.0, 12.0)
 

@@ -7,10 +7,10 @@ import numpy as np
 
 from taco_mav.config import profile_from_dict
 from taco_mav.core.types import FixQuery
-from taco_mav.link.fixes import FixPipeline
-from taco_mav.link.options import DaemonOptions
-from taco_mav.link.timesync import ClockMap
-from taco_mav.link.worker import WorkResult
+from taco_mav.daemon.fixes import FixPipeline
+from taco_mav.daemon.options import DaemonOptions
+from taco_mav.daemon.worker import WorkResult
+from taco_mav.mavlink.timesync import ClockMap
 from tests.fault_helpers import Counters
 
 

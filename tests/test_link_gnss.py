@@ -1,4 +1,4 @@
-"""GNSS bookkeeping on the link side (taco_mav/link/gnss.py) and its neighbours: which GPS instance is ours
+"""GNSS bookkeeping on the link side (taco_mav/daemon/gnss.py) and its neighbours: which GPS instance is ours
 (ParamCheck, GPSn_TYPE), reading -> GnssFix conversion (ENU metres, grid velocity, accuracies), loss and
 return after 1 s, the spoofing-guard events, and the origin's order of sources (OriginChooser)."""
 
@@ -14,12 +14,11 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from taco_mav.core.types import GnssOutcome  # noqa: E402
-from taco_mav.link.anchor import OriginCandidate, OriginChooser  # noqa: E402
-from taco_mav.link.decoders import GnssReading  # noqa: E402
-from taco_mav.link.encoders import Origin  # noqa: E402
-from taco_mav.link.gnss import (FALLBACK_SIGMA_H_M, GnssTracker, gnss_fix, moved_from_origin,  # noqa: E402
-                                sigma_h_of)
-from taco_mav.link.requests import MessageRequest, ParamCheck  # noqa: E402
+from taco_mav.daemon.anchor import OriginCandidate, OriginChooser  # noqa: E402
+from taco_mav.daemon.gnss import FALLBACK_SIGMA_H_M, GnssTracker, gnss_fix, moved_from_origin, sigma_h_of  # noqa: E402
+from taco_mav.mavlink.decoders import GnssReading  # noqa: E402
+from taco_mav.mavlink.encoders import Origin  # noqa: E402
+from taco_mav.mavlink.requests import MessageRequest, ParamCheck  # noqa: E402
 
 ORIGIN = Origin.from_latlon(49.0, 8.4, 115.0)
 TX = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -257,7 +256,7 @@ def test_start_fix_carried_to_the_first_imu_sample() -> None:
     """A GNSS origin read 0.5 s before the first IMU sample of a rover doing 5 m/s east: the Localiser starts
     2.5 m east (grid), not where the fix was; a far fix from home starts there; no carry beyond 2 s."""
     from taco_mav.config import localiser_params, profile_from_dict
-    from taco_mav.link.anchor import Anchor
+    from taco_mav.daemon.anchor import Anchor
 
     a = Anchor(localiser_params(profile_from_dict({})))
     origin = a.set_origin(49.0, 8.4, 115.0, 5.0, math.pi / 2)

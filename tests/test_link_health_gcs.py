@@ -1,4 +1,4 @@
-"""Ground-station health (link/gcs.py): the taco_mode state machine and its values, and live over real UDP on
+"""Ground-station health (daemon/gcs.py): the taco_mode state machine and its values, and live over real UDP on
 127.0.0.1 against the minimal autopilot: NAMED_VALUE_FLOAT taco_mode / taco_gnss / taco_hacc / taco_age /
 taco_w once a second with the values the daemon's state has, and a STATUSTEXT for every change of mode."""
 
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mav_autopilot import MiniAutopilot, free_udp_port
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
 from taco_mav.config import profile_from_dict
 from taco_mav.core.types import Estimate
-from taco_mav.link import encoders
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.gcs import GcsHealth, TacoMode
-from mav_autopilot import MiniAutopilot, free_udp_port
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.gcs import GcsHealth, TacoMode
+from taco_mav.mavlink import encoders
 
 NAMES = {"taco_mode", "taco_gnss", "taco_hacc", "taco_age", "taco_w"}
 

@@ -1,4 +1,4 @@
-"""IMU and attitude source selection (link/imu_source.py): the first *valid* sample chooses, a source silent for
+"""IMU and attitude source selection (daemon/imu_source.py): the first *valid* sample chooses, a source silent for
 1 s gives way to one that delivers, a pinned source is kept; ATTITUDE_QUATERNION decodes like ATTITUDE. Live
 over real UDP on 127.0.0.1: corrupt IMU messages of other kinds first, then a fallback RAW_IMU -> SCALED_IMU
 and ATTITUDE -> ATTITUDE_QUATERNION; and a seeded fuzz run in "auto" mode with corrupt IMU messages first."""
@@ -14,15 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import ardupilotmega as apm
-
-from taco_mav.config import profile_from_dict
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.decoders import Decoders
-from taco_mav.link.imu_source import InputSources, SourceSelector, attitude_quaternion
 from fuzz_frames import STEP_S, AutopilotStream, corrupt_imu
 from fuzz_harness import FuzzOptions, run_fuzz
 from mav_autopilot import free_udp_port
+from pymavlink.dialects.v20 import ardupilotmega as apm
+
+from taco_mav.config import profile_from_dict
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.imu_source import InputSources, SourceSelector, attitude_quaternion
+from taco_mav.mavlink.decoders import Decoders
 
 MAV = apm.MAVLink(None, srcSystem=1, srcComponent=1)
 

@@ -1,6 +1,6 @@
 """IMU timestamp checks: reboots and gaps are believed only when the next sample confirms them."""
 
-from taco_mav.link.imu_timeline import ImuTimeline, Verdict
+from taco_mav.daemon.imu_timeline import ImuTimeline, Verdict
 
 
 def _run(times, anchored=True):

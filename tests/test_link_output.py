@@ -14,10 +14,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from taco_mav.config import load_profile, replace_in  # noqa: E402
 from taco_mav.core.types import Estimate  # noqa: E402
+from taco_mav.daemon.output import OutputStage  # noqa: E402
 from taco_mav.errors import ConfigError  # noqa: E402
-from taco_mav.link import encoders  # noqa: E402
-from taco_mav.link.decoders import AttitudeReading  # noqa: E402
-from taco_mav.link.output import OutputStage  # noqa: E402
+from taco_mav.mavlink import encoders  # noqa: E402
+from taco_mav.mavlink.decoders import AttitudeReading  # noqa: E402
 
 ORIGIN = encoders.Origin.from_latlon(49.0, 8.4, 115.0)
 UTC = 1.7e9

@@ -1,4 +1,4 @@
-"""Bounded TCP connects and non-blocking reconnects (link/reconnect.py) against real sockets on loopback,
+"""Bounded TCP connects and non-blocking reconnects (mavlink/reconnect.py) against real sockets on loopback,
 including a peer that drops SYNs (a listening socket whose backlog is full)."""
 
 import socket
@@ -7,8 +7,8 @@ import time
 import pytest
 
 from taco_mav.errors import TacoError
-from taco_mav.link.connection import Link
-from taco_mav.link.reconnect import TimedTcp, pace_tcp_reconnect
+from taco_mav.mavlink.connection import Link
+from taco_mav.mavlink.reconnect import TimedTcp, pace_tcp_reconnect
 
 
 def _blackhole() -> tuple[socket.socket, list[socket.socket], int]:

@@ -1,4 +1,4 @@
-"""SET_MESSAGE_INTERVAL requests as ArduPilot answers them (link/requests.py): a rate it calls "too fast" is
+"""SET_MESSAGE_INTERVAL requests as ArduPilot answers them (mavlink/requests.py): a rate it calls "too fast" is
 asked for again slower (ArduPilot Rover SITL refuses 50 Hz and takes 40 Hz, issue 19), then falls back to a
 data stream; real pymavlink messages through a real MAVLink encoder/decoder."""
 
@@ -7,7 +7,7 @@ import os
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as m  # noqa: E402
 
-from taco_mav.link.requests import StreamRequester  # noqa: E402
+from taco_mav.mavlink.requests import StreamRequester  # noqa: E402
 
 
 class _Wire:

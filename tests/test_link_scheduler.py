@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from taco_mav.link.health import Health
-from taco_mav.link.scheduler import Periodic
+from taco_mav.daemon.health import Health
+from taco_mav.daemon.scheduler import Periodic
 
 
 def test_steady_intervals_under_jitter() -> None:

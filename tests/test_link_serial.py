@@ -18,14 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mav_autopilot import MiniAutopilot
 from pymavlink import mavutil
 
 from taco_mav.config import profile_from_dict
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.errors import TacoError
-from taco_mav.link.connection import Link
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from taco_mav.link.reconnect import pace_serial_reconnect
-from mav_autopilot import MiniAutopilot
+from taco_mav.mavlink.connection import Link
+from taco_mav.mavlink.reconnect import pace_serial_reconnect
 
 BAUD = 921600
 

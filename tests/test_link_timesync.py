@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from taco_mav.link.timesync import ClockMap
+from taco_mav.mavlink.timesync import ClockMap
 
 
 class Clock:

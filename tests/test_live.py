@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from taco_mav.config import Estimator, load_profile, replace_in
-from taco_mav.link.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.sim import Simulator
 from tests.sim_helpers import free_udp_port
 

@@ -1,9 +1,8 @@
-import math
 
 import numpy as np
 import pytest
-
 from helpers import OracleMatcher, simulate
+
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.params import ImuParams, LatencyParams, LocaliserParams, TriggerParams
 from taco_mav.core.types import MatchResult

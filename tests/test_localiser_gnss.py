@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import OracleMatcher, simulate
+
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus_params import PlusParams

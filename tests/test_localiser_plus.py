@@ -6,15 +6,15 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import OracleMatcher, simulate
+from test_localiser import _drive
+
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.lock import LockState
 from taco_mav.core.params import LocaliserParams, UkfParams
 from taco_mav.core.plus_params import PlusParams
 from taco_mav.core.types import MatchResult
 from taco_mav.core.ukf import fix_covariance
-from test_localiser import _drive
 
 PLUS = LocaliserParams(plus=PlusParams())
 

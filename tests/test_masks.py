@@ -8,14 +8,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from gap import FrameGap, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import NORTH, WEST, textured_mosaic
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
-from taco_mav.cvgl.gap import FrameGap, occlude_frame
 from taco_mav.cvgl.ipm import BevProjector
 from taco_mav.cvgl.masks import MaskOptions, horizon_row, image_mask, vertical_structure_mask
 from taco_mav.datasets.synthetic.render import GroundRenderer

@@ -13,12 +13,12 @@ from typing import Sequence
 
 import numpy as np
 import pytest
+from fault_helpers import run_pipeline, small_camera_profile, straight_drive
+from mav_autopilot import MiniAutopilot, free_udp_port
 
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
-from taco_mav.link.daemon import Daemon, DaemonOptions
-from fault_helpers import run_pipeline, small_camera_profile, straight_drive
-from mav_autopilot import MiniAutopilot, free_udp_port
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 
 BAD = MatchResult(np.eye(2), np.array([np.nan, 0.0]), 0.9)
 

@@ -80,7 +80,8 @@ def test_wheel_ships_profiles_and_no_test_tooling(wheel: Path) -> None:
         assert f"taco_mav/vehicle_profiles/{name}.yaml" in names
     for name in PX4_PARAMS:  # the PX4 parameter files a user loads in QGroundControl, beside the profiles
         assert f"taco_mav/vehicle_profiles/{name}.params" in names
-    assert not [n for n in names if n.startswith("tests/") or "/fuzz" in n], "test tooling in the wheel"
+    assert not [n for n in names if n.startswith(("tests/", "tools/")) or "/fuzz" in n], "test tooling in the wheel"
+    assert not [n for n in names if n.endswith("/gap.py")], "the appearance-gap maker (tools/gap.py) in the wheel"
 
 
 def test_installed_wheel_loads_profiles_by_name_from_another_folder(site: Path, tmp_path: Path) -> None:
@@ -116,7 +117,7 @@ from pathlib import Path
 import taco_mav
 from taco_mav.config import load_profile
 from taco_mav.datasets.synthetic import build_world
-from taco_mav.link.daemon import Daemon, DaemonOptions
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.sim import Simulator
 
 logging.basicConfig(level=logging.WARNING)  # stderr: shown when the run fails

@@ -2,8 +2,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import G, simulate
+
 from taco_mav.core.preintegration import Preintegrator, enu_heading, level_forward_accel
 from taco_mav.core.types import ImuSample
 

@@ -12,14 +12,14 @@ from typing import Callable
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
+from mav_autopilot import MiniAutopilot, free_udp_port  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.config import profile_from_dict  # noqa: E402
+from taco_mav.daemon.daemon import Daemon, DaemonOptions  # noqa: E402
 from taco_mav.errors import ConfigError  # noqa: E402
-from taco_mav.link import signing  # noqa: E402
-from taco_mav.link.connection import Link  # noqa: E402
-from taco_mav.link.daemon import Daemon, DaemonOptions  # noqa: E402
-from mav_autopilot import MiniAutopilot, free_udp_port  # noqa: E402
+from taco_mav.mavlink import signing  # noqa: E402
+from taco_mav.mavlink.connection import Link  # noqa: E402
 
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))

@@ -1,7 +1,6 @@
 import math
 
 import numpy as np
-import pytest
 
 from taco_mav.core.params import SmootherParams
 from taco_mav.core.smoother import FixNode, loop_closure_pairs, smooth

@@ -15,7 +15,6 @@ from taco_mav.reliability.soak import circle_drive
 from tests.sim_helpers import BOOT, write_tlog
 
 
-
 def test_tlog_drive_matches_what_was_recorded(tmp_path: Path) -> None:
     d = circle_drive(60.0, rate_hz=10.0, radius_m=150.0, speed_mps=8.0)
     drive = load_tlog(write_tlog(tmp_path / "lap.tlog", d))

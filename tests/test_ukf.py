@@ -2,8 +2,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import OracleMatcher, simulate
+
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.params import ImuParams, LocaliserParams
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas

@@ -12,10 +12,10 @@ import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
 from taco_mav.core import ukf_kernels
+from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.types import horizontal_sigma
 from taco_mav.core.ukf import (PlanarUkf, _motion, _residual_x, fix_covariance, fix_covariance_reference, joseph_update,
                                joseph_update_reference, nearest_pd, process_noise)
-from taco_mav.core.preintegration import wrap_angle
 
 
 class ReferenceUkf:

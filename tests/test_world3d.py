@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import rasterio
 
-from taco_mav.camera import FrameGuard, open_camera
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.sources import FrameGuard, open_camera
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.synthetic import build_world, load_world
 from taco_mav.datasets.synthetic.layout import Building, Scene

@@ -37,9 +37,11 @@ from taco_mav.config import Estimator, Profile, load_profile, parse_overrides, r
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
-from taco_mav.cvgl.gap import FrameGap, MapGap, alter_mosaic, occlude_frame
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.drive import SyntheticDrive, load_world
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from gap import FrameGap, MapGap, alter_mosaic, occlude_frame  # noqa: E402
 
 log = logging.getLogger("appearance_gap")
 
@@ -129,8 +131,8 @@ def matcher_profile(prof: Profile, variant: str) -> Profile:
 def run_eval(drive: Any, profile_name: str, estimator: str, descriptor: str, smap: SatelliteMap | None,
              overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """One offline run; ATE, fix statistics, NIS. overrides: dotted profile keys -> values (e.g. ukf.fix_fwd_num)."""
-    from taco_mav.evaluation.summary import metrics
     from taco_mav.evaluation.runner import run_drive
+    from taco_mav.evaluation.summary import metrics
 
     prof = matcher_profile(load_profile(profile_name), descriptor)
     prof = replace_in(prof, "estimator", Estimator(estimator))

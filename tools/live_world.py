@@ -35,8 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from taco_mav.config import Estimator, load_profile, replace_in
-    from taco_mav.link.connection import free_udp_port
-    from taco_mav.link.daemon import Daemon, DaemonOptions
+    from taco_mav.daemon.daemon import Daemon, DaemonOptions
+    from taco_mav.mavlink.connection import free_udp_port
     from taco_mav.sim import Simulator
 
     prof = load_profile(args.profile)

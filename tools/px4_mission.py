@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import fcntl
 import json
-import math
 import os
 import shutil
 import signal
@@ -45,8 +44,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sitl_mission import (M, Gcs, arm, build_world, mavutil, score, sent_score, set_ekf_origin,  # noqa: E402
-                          stop_group, wait_ekf)
+from sitl_mission import Gcs, M, arm, build_world, mavutil, score, sent_score, set_ekf_origin, stop_group, wait_ekf  # noqa: E402
 from sitl_mission import runaway as _runaway  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,7 +71,7 @@ class Px4MissionSpec:
     ekf_wait_s: wall seconds allowed for EKF2's first global position; gcs_sets_origin: the ground station sends
     SET_GPS_GLOBAL_ORIGIN (home) until PX4 reports it (None: solo only, where no receiver gives EKF2 one);
     params_file: a QGroundControl parameter file set at boot, as a user loads it ("auto": the one shipped beside
-    the profiles for the setup, taco_mav/vehicle_profiles/px4_rover_<setup>.params, where there is one; "": none);
+    the profiles for the setup, vehicle_profiles/px4_rover_<setup>.params, where there is one; "": none);
     extra_params: PX4 parameters set at boot after it (PX4_PARAM_<NAME>); daemon_args: appended to
     `taco-mav run`."""
 
@@ -174,7 +172,7 @@ def read_params_file(path: Path) -> dict[str, float]:
 def params_file(spec: Px4MissionSpec) -> Path | None:
     """The parameter file spec.params_file names (see Px4MissionSpec), or None."""
     if spec.params_file == "auto":
-        shipped = ROOT / "taco_mav" / "vehicle_profiles" / f"px4_rover_{spec.setup}.params"
+        shipped = ROOT / "vehicle_profiles" / f"px4_rover_{spec.setup}.params"
         return shipped if spec.setup != "gnss" and shipped.is_file() else None
     return Path(spec.params_file) if spec.params_file else None
 

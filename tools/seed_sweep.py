@@ -25,10 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from taco_mav.config import parse_overrides, replace_in
+from taco_mav.errors import UsageError
 from taco_mav.evaluation.evaluate import EvalRequest, load_drives, resolve_profile
 from taco_mav.evaluation.runner import run_drive
 from taco_mav.evaluation.summary import metrics
-from taco_mav.errors import UsageError
 
 
 @dataclass(frozen=True)

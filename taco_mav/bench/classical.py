@@ -27,7 +27,7 @@ import numpy as np
 import rasterio
 from rasterio.transform import from_origin
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, ClassicalMatcherConfig, MapConfig
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher

@@ -39,9 +39,9 @@ from pymavlink import mavutil  # noqa: E402
 from taco_mav.bench.fusion import _drive as _weaving_drive  # noqa: E402
 from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.core import ukf_kernels  # noqa: E402
-from taco_mav.link.connection import free_udp_port  # noqa: E402
-from taco_mav.link.daemon import Daemon, DaemonOptions  # noqa: E402
-from taco_mav.link.eventlog import EventLog  # noqa: E402
+from taco_mav.daemon.daemon import Daemon, DaemonOptions  # noqa: E402
+from taco_mav.daemon.eventlog import EventLog  # noqa: E402
+from taco_mav.mavlink.connection import free_udp_port  # noqa: E402
 
 log = logging.getLogger(__name__)
 DURATION_S = 15.0

@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 from tqdm import tqdm
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig, EmulatorConfig
 from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.cvgl.emulator import EmulatorMatcher, Outcome

@@ -2,7 +2,7 @@
 
 `taco-mav bench --only fg2 --fg2-checkout DIR [--fg2-checkpoint F] --device cuda|cpu` runs it; without a
 checkout the section is skipped and its keys are absent. Without a checkpoint the model has random weights
-(`fg2_shim.build_random_model`, seeded): timing and memory do not depend on the weights.
+(`cvgl/fg2/shim.py build_random_model`, seeded): timing and memory do not depend on the weights.
 
 Keys:
 - `fg2_trigger_ms_p50`, `fg2_trigger_ms_p90`: wall time of `Fg2Matcher.match` on one ground frame (KITTI camera,
@@ -86,11 +86,11 @@ def run(progress: bool = True, checkout: str | None = None, checkpoint: str | No
     except ImportError:
         log.warning("bench fg2: torch is not installed (pip install 'taco_mav[fg2]'); the fg2 keys are left out")
         return {}
-    from taco_mav.camera_geometry import GroundCamera
+    from taco_mav.camera.geometry import GroundCamera
     from taco_mav.config import CameraConfig, Fg2Config
     from taco_mav.cvgl.base import GroundFrame
-    from taco_mav.cvgl.fg2 import Fg2Matcher, resolve_device
-    from taco_mav.cvgl.fg2_shim import build_random_model
+    from taco_mav.cvgl.fg2.adapter import Fg2Matcher, resolve_device
+    from taco_mav.cvgl.fg2.shim import build_random_model
     from taco_mav.cvgl.satellite import SatelliteMap
 
     cfg = Fg2Config(checkout=str(checkout), checkpoint=str(checkpoint or ""), device=device, fast=fast,

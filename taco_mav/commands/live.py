@@ -56,7 +56,7 @@ def world_profile_hint(world_dir: Path, profile: Profile) -> str | None:
 def check_connect(text: str, baud: int) -> None:
     """--connect: a network form with HOST:PORT, or a serial device path (an absent device is a runtime error,
     found when the daemon opens it); a word followed by ':' that is no known scheme is a typo."""
-    from taco_mav.link.connection import _NETWORK, parse_connection
+    from taco_mav.mavlink.connection import _NETWORK, parse_connection
 
     device, _ = parse_connection(text, baud)
     scheme = device.split(":", 1)[0] + ":" if ":" in device else ""
@@ -67,8 +67,8 @@ def check_connect(text: str, baud: int) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from taco_mav.config import Estimator, load_profile
-    from taco_mav.link.appendlog import session_dir
-    from taco_mav.link.signing import key_file
+    from taco_mav.mavlink.appendlog import session_dir
+    from taco_mav.mavlink.signing import key_file
 
     origin = None
     if args.origin:
@@ -85,10 +85,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         log.warning(hint)
     if args.log_dir:
         checks.output_dir(args.log_dir, "--log-dir", create=False)
+    from taco_mav.daemon.daemon import DaemonOptions, run_daemon  # the heavy import, after every check
     from taco_mav.datasets.synthetic import register_world_camera
-    from taco_mav.link.daemon import DaemonOptions, run_daemon  # the heavy import, after every check
 
-    register_world_camera()  # --camera world:DIR (camera.open_camera's registry; link never imports datasets)
+    register_world_camera()  # --camera world:DIR (camera.open_camera's registry; the daemon never imports datasets)
 
     log_dir = None
     if args.log_dir:

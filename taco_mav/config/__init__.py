@@ -24,10 +24,9 @@ from __future__ import annotations
 
 from taco_mav.config.fields import Estimator, bounded
 from taco_mav.config.link import LinkConfig, OutputConfig
-from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, parse_overrides,
-                                     profile_from_dict, resolve_profile_path, shipped_profiles)
-from taco_mav.config.profile import (MATCHERS, Profile, frd_fwd_left, localiser_params, profile_to_dict,
-                                     replace_in)
+from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profile, parse_overrides, profile_from_dict,
+                                     resolve_profile_path, shipped_profiles)
+from taco_mav.config.profile import MATCHERS, Profile, frd_fwd_left, localiser_params, profile_to_dict, replace_in
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
 from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, SmootherParams, TriggerParams,

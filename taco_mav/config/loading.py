@@ -1,8 +1,9 @@
 """Loading and validating profiles: YAML -> frozen dataclasses, by path or by the name of a shipped profile.
 
 Unknown keys, wrong types and out-of-range values raise `ConfigError` naming the file and the dotted key.
-Shipped profiles are package data (`taco_mav/vehicle_profiles/*.yaml`), read through `importlib.resources`, so a
-name such as "ardupilot_rover" resolves from any folder and in any install (editable, wheel, sdist).
+Shipped profiles live at the repository top (`vehicle_profiles/*.yaml`) and are package data through the link
+`taco_mav/vehicle_profiles`, read through `importlib.resources`, so a name such as "ardupilot_rover" resolves
+from any folder and in any install (editable, wheel, sdist).
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ def profile_from_dict(data: dict[str, Any], source: str = "<dict>", base_dir: Pa
     if profile.matcher not in MATCHERS:
         raise ConfigError(f"{source}: matcher: {profile.matcher!r} is not one of {', '.join(MATCHERS)}")
     if profile.camera.calibration:
-        from taco_mav.camera_calibration import resolve_calibration
+        from taco_mav.camera.calibration import resolve_calibration
 
         camera = resolve_calibration(profile.camera, data.get("camera") or {}, base_dir, f"{source}:")
         profile = dataclasses.replace(profile, camera=camera)

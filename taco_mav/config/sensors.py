@@ -135,14 +135,14 @@ class Fg2Config:
     # (docs/matchers.md: DINOv2 fp16 as FG2 does, CVM, camera_k, pose and mass fp32)
     # "module:function" building the model from (checkout, checkpoint, device); imported with the checkout on
     # sys.path. The default shim checks the published FG2 layout (see docs/matchers.md).
-    entry: str = "taco_mav.cvgl.fg2_shim:build_model"
+    entry: str = "taco_mav.cvgl.fg2.shim:build_model"
     # Fast path of the published FG2 (ground branch once per trigger, heights batched, SDPA in DINOv2, TF32 on
     # CUDA); false runs FG2's own CVM.forward per crop. Same outputs within float tolerance (tests/test_fg2_fast.py).
     fast: bool = True
     # torch.compile DINOv2's forward (CUDA; the first triggers of each input shape compile, which takes a while).
     compile: bool = False
     # Crops warped on the matcher's device: the K heading-up crops of a trigger are resampled from a device copy of
-    # the mosaic in one batched bilinear call (taco_mav/cvgl/device_crops.py) instead of K cv2 warps on the CPU
+    # the mosaic in one batched bilinear call (taco_mav/cvgl/fg2/device_crops.py) instead of K cv2 warps on the CPU
     # and an upload; same geometry and off-map rules, within ~1 grey level (tests/test_device_crops.py). Not in
     # the paper.
     device_crops: bool = False

@@ -28,38 +28,17 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
 from taco_mav.core.gnss_guard import GnssGuard, GuardState, GuardVerdict, filter_offset_variance, receiver_variances
 from taco_mav.core.gnss_params import GnssParams
 from taco_mav.core.gnss_shadow import Anchor, DeadReckoner, DrSnap
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.types import GnssFix, GnssOutcome
 from taco_mav.core.ukf import fix_covariance
-
-if TYPE_CHECKING:  # pragma: no cover
-    from taco_mav.core.localiser import FixOutcome, _Tick
-
-
-@dataclass(frozen=True)
-class GnssMeasurement:
-    """One reading referred to the end of a filter frame (kept on the frame for replays).
-    t: the reading's time, s; xy: position at the frame end, ENU m (2,); var_xy: its variance, m^2 (each
-    axis); speed: ground speed at the frame end, m/s (the reading's less what the preintegrator gained since),
-    or None; var_speed: (m/s)^2; course: grid course at the frame end, ENU rad (the reading's less the heading
-    change since), or None; var_course: rad^2."""
-
-    t: float
-    xy: np.ndarray
-    var_xy: float
-    speed: float | None = None
-    var_speed: float = 0.0
-    course: float | None = None
-    var_course: float = 0.0
-
 
 class GnssFusion:
     """The GNSS half of `Localiser` (mixed in; it uses the filter, preintegrator and history)."""
@@ -72,7 +51,7 @@ class GnssFusion:
         self.gnss_guard: GnssGuard | None = None  # made at the first reading
         self._gnss_dr: DeadReckoner | None = None
         self._gnss_snaps: deque[tuple[int, DrSnap]] = deque()  # (frame node, dead reckoner at its end)
-        self._gnss_pending: deque[tuple[_Tick, GnssMeasurement]] = deque()  # accepted, not yet fused
+        self._gnss_pending: deque[tuple[Tick, GnssMeasurement]] = deque()  # accepted, not yet fused
         self._gnss_flush_t = -math.inf
         self._gnss_last_t = -math.inf
         self._gnss_query_t = -math.inf
@@ -133,7 +112,7 @@ class GnssFusion:
                            v.innovation_m)
 
     def _gnss_measurement(self, fix: GnssFix, xy: np.ndarray, vel: np.ndarray | None,
-                          tick: _Tick) -> tuple[GnssMeasurement, np.ndarray]:
+                          tick: Tick) -> tuple[GnssMeasurement, np.ndarray]:
         """The reading referred to the latest frame, and its position carried to the IMU's now (ENU m)."""
         gp, pre = self._gnss_params, self.pre
         lead = self.t - fix.t  # the reading is this much older than the IMU's now
@@ -183,7 +162,7 @@ class GnssFusion:
         self.gnss_fused += len(due)
         self._gnss_fused_live(due[-1][0], due[-1][1])
 
-    def _gnss_replay_after(self, base: _Tick) -> None:
+    def _gnss_replay_after(self, base: Tick) -> None:
         """Replay the frames after `base` from the filter's current state (which is base's), as `_apply_at`
         does after a late fix: their stored camera fixes and GNSS are applied again."""
         self._reset_anchor()
@@ -197,20 +176,20 @@ class GnssFusion:
             for h in [base, *later]:
                 self._graph_x[h.node] = h.x[:3].copy()
 
-    def _gnss_replay(self, tick: _Tick) -> None:
+    def _gnss_replay(self, tick: Tick) -> None:
         """A replayed frame applies its GNSS measurements again (called at the end of `_advance`)."""
         for m in tick.gnss:
             self._gnss_apply(tick, m)
         self._gnss_settle(tick)
 
-    def _gnss_settle(self, tick: _Tick) -> None:
+    def _gnss_settle(self, tick: Tick) -> None:
         """After the GNSS updates at `tick`: store the state on it and reset the anchor window (a fix)."""
         tick.x, tick.P = self.ukf.get_state()
         self._reset_anchor()
         tick.window = self._window
 
     # ------------------------------------------------------------------ paper mode: re-anchoring
-    def _gnss_apply(self, tick: _Tick, m: GnssMeasurement) -> None:
+    def _gnss_apply(self, tick: Tick, m: GnssMeasurement) -> None:
         """Paper mode: the reading re-anchors the filter at `tick`: position := the reading, position
         covariance := sigma_h^2 I (uncorrelated with the heading)."""
         x, P = self.ukf.get_state()
@@ -220,7 +199,7 @@ class GnssFusion:
         P[:2, :2] = m.var_xy * np.eye(2)
         self.ukf.set_state(x, P)
 
-    def _gnss_fused_live(self, tick: _Tick, m: GnssMeasurement) -> None:
+    def _gnss_fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch, the newest reading's speed re-anchors the preintegrator's (paper mode): the speed
         error at its frame less what later re-anchorings set already, kept as `dv_fed` on the latest frame."""
         if m.speed is None:
@@ -238,7 +217,7 @@ class GnssFusion:
         if self._gnss_dr is not None:
             self._gnss_dr.add(t, dt, self.pre.accel_fwd, self.pre.theta)
 
-    def _gnss_frame(self, tick: _Tick) -> None:
+    def _gnss_frame(self, tick: Tick) -> None:
         """A new frame: keep the dead reckoner's snapshot at its end, and fuse what is due (from `_frame`)."""
         if self._gnss_dr is None:
             return
@@ -248,7 +227,7 @@ class GnssFusion:
             self._gnss_snaps.popleft()
         self._gnss_flush()
 
-    def _gnss_anchor(self, tick: _Tick) -> Anchor | None:
+    def _gnss_anchor(self, tick: Tick) -> Anchor | None:
         """The filter's state at `tick` as a shadow anchor (None without a snapshot there)."""
         snap = next((s for n, s in self._gnss_snaps if n == tick.node), None)
         if snap is None:
@@ -266,7 +245,7 @@ class GnssFusion:
         return Anchor(tick.t, tick.x[:2].copy(), cov, speed, bias, beta, snap, *sigmas,
                       bias_estimated=not self._gnss_replaces)
 
-    def _gnss_anchor_terms(self, tick: _Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+    def _gnss_anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
         """(true-speed estimate m/s, accelerometer bias m/s^2, compass bias rad, their 1-sigmas with the
         heading's) at `tick`'s end. Paper mode has no bias states: its speed is the receiver's (sigma: the last
         reading's speed accuracy), its accelerometer bias unknown (`Anchor.bias_estimated`)."""
@@ -274,7 +253,7 @@ class GnssFusion:
         sv = math.sqrt(m.var_speed) if m is not None else self._gnss_params.sigma_v_min_mps
         return float(tick.inc.speed_end + tick.dv_fed), 0.0, 0.0, (sv, 0.0, 0.0)
 
-    def _gnss_reference(self, lag: float) -> _Tick | None:
+    def _gnss_reference(self, lag: float) -> Tick | None:
         """The frame a shadow of the guard starts from: the newest at least `lag` seconds old (the oldest in the
         history while there is none), or None before the dead reckoner's first frame. While the receiver is in
         use only frames since it was last lost or rejected count (the filter before had not met it)."""
@@ -305,7 +284,7 @@ class GnssFusion:
         g.camera_check(outcome.capture_t, np.asarray(outcome.xy, dtype=float), R, anchor)
 
     # ------------------------------------------------------------------ rejection
-    def _gnss_rollback(self, base: _Tick) -> None:
+    def _gnss_rollback(self, base: Tick) -> None:
         """Undo the GNSS fused after frame `base` (the guard's reference): rewind there and replay without
         them (camera fixes stay)."""
         later = [h for h in self._history if h.t > base.t]
@@ -319,7 +298,7 @@ class GnssFusion:
         if self.gnss_guard is not None:
             self.gnss_guard.hold_anchor = self._gnss_anchor(base)
 
-    def _gnss_after_rollback(self, later: list[_Tick]) -> None:
+    def _gnss_after_rollback(self, later: list[Tick]) -> None:
         """Paper mode keeps the preintegrator's speed: without a bias state, integrating the accelerometer
         from the rewound frame drifts more than a receiver's speed a few seconds old."""
 

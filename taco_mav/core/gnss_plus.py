@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.core.gnss_fusion import GnssMeasurement
+from taco_mav.core.frames import GnssMeasurement
 from taco_mav.core.gnss_guard import receiver_variances
-from taco_mav.core.localiser import _Tick
+from taco_mav.core.frames import Tick
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.ukf import joseph_update
 
@@ -29,7 +29,7 @@ class GnssPlusMixin:
 
     _gnss_replaces = False  # a Kalman update, not a re-anchoring
 
-    def _gnss_apply(self, tick: _Tick, m: GnssMeasurement) -> None:
+    def _gnss_apply(self, tick: Tick, m: GnssMeasurement) -> None:
         """Kalman update at `tick`: position (isotropic sigma_h) and, when the reading has a speed (above
         gnss.min_speed_mps), the speed error x[3] (the ground speed at the frame end against the preintegrated
         speed there, m/s) and the heading x[2] (the course; as the compass reads theta + beta this makes the
@@ -57,7 +57,7 @@ class GnssPlusMixin:
             P[:2, :2] += (floor - lo) * np.eye(2)
         self.ukf.set_state(x, P)
 
-    def _gnss_fused_live(self, tick: _Tick, m: GnssMeasurement) -> None:
+    def _gnss_fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch of readings: feed the speed error back, as after an accepted fix."""
         if self._history:
             self._feedback(self._history[-1])
@@ -66,14 +66,14 @@ class GnssPlusMixin:
         if self.q.guard:
             self._reset_unaided()
 
-    def _gnss_anchor_terms(self, tick: _Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+    def _gnss_anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
         x, P = tick.x, tick.P
         beta = float(x[5]) if len(x) > 5 else 0.0
         var_heading = float(P[5, 5]) if len(x) > 5 else float(P[2, 2])
         sig = tuple(math.sqrt(max(v, 0.0)) for v in (float(P[3, 3]), float(P[4, 4]), var_heading))
         return float(tick.inc.speed_end + tick.dv_fed + x[3]), float(x[4]), beta, sig
 
-    def _gnss_after_rollback(self, later: list[_Tick]) -> None:
+    def _gnss_after_rollback(self, later: list[Tick]) -> None:
         """The replay left the undone speed corrections in the speed error: feed it back."""
         if self._history:
             self._feedback(self._history[-1])

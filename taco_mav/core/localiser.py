@@ -15,67 +15,24 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, MomentAccumulator, Moments, error_terms
+from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, MomentAccumulator, error_terms
+from taco_mav.core.frames import FixOutcome, Tick
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
-from taco_mav.core.gnss_fusion import GnssFusion, GnssMeasurement
+from taco_mav.core.gnss_fusion import GnssFusion
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.preintegration import Increment, Preintegrator, wrap_angle
-from taco_mav.core.search import (best_candidate, cross_offsets, cross_spacing, fix_position,
-                                  forward_bias, search_centres, trigger_reason)
+from taco_mav.core.preintegration import Preintegrator, wrap_angle
+from taco_mav.core.search import (best_candidate, cross_offsets, cross_spacing, fix_position, forward_bias,
+                                  search_centres, trigger_reason)
 from taco_mav.core.smoother import FixNode, SmoothResult, smooth
 from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
 from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
 
-
 _NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
-
-
-@dataclass
-class _Tick:
-    """One processed filter frame, kept in the bounded history for delayed fixes."""
-
-    node: int
-    t: float
-    inc: Increment
-    residual: Moments
-    theta_start: float  # compass heading at the start of the increment, ENU rad
-    x: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    P: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    window: AnchorWindow = AnchorWindow()
-    pre_xy: tuple[float, float] = (0.0, 0.0)
-    terms: ErrorTerms = ErrorTerms(0.0, 0.0, 0.0)
-    fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
-    fix_heading: tuple[float, float] | None = None  # taco+: (true heading ENU rad, 1-sigma rad) of that fix
-    stationary: bool = False  # taco+: zero-velocity update at this frame
-    dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
-    track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
-    gnss: list[GnssMeasurement] = field(default_factory=list)  # real GNSS applied at this frame (replayed)
-
-
-@dataclass(frozen=True)
-class FixOutcome:
-    """What happened to one answered query. accepted: fused; reason: "accepted", "yaw_gate", "stale",
-    "unknown_query", "no_results" or "nonfinite"; chosen: index of the winning crop; xy: the fix, ENU metres;
-    yaw_residual: rad; sigma_fwd/sigma_lat: metres; nis: normalised innovation squared; delay_s: arrival
-    minus capture time; weights: w of every crop."""
-
-    query_id: int
-    accepted: bool
-    reason: str
-    capture_t: float
-    arrival_t: float
-    chosen: int = -1
-    xy: np.ndarray | None = None
-    yaw_residual: float = 0.0
-    sigma_fwd: float = 0.0
-    sigma_lat: float = 0.0
-    nis: float = 0.0
-    weights: tuple[float, ...] = ()
 
 
 @dataclass
@@ -112,7 +69,7 @@ class Localiser(GnssFusion):
         self._query_id = 0
         self._ready: FixQuery | None = None
         self._pending: _Pending | None = None
-        self._history: deque[_Tick] = deque(maxlen=max(2, int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz)) + 2))
+        self._history: deque[Tick] = deque(maxlen=max(2, int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz)) + 2))
         self._nodes = 0
         # Offline records (record=True): online track, smoother inputs, outcomes.
         self.track: list[tuple[float, float, float, float, float, float, float]] = []  # t, x, y, th, Pxx, Pxy, Pyy
@@ -146,7 +103,7 @@ class Localiser(GnssFusion):
     def _frame(self) -> None:
         theta_start = self.pre.interval_heading
         inc = self.pre.take_increment()
-        tick = _Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
+        tick = Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
         self._open_tick(tick)
         self._advance(tick, self.pre.x, self.pre.y)
         self._nodes += 1
@@ -160,7 +117,7 @@ class Localiser(GnssFusion):
         self._gnss_frame(tick)
         self._maybe_trigger()
 
-    def _advance(self, tick: _Tick, pre_x: float, pre_y: float) -> None:
+    def _advance(self, tick: Tick, pre_x: float, pre_y: float) -> None:
         """Predict + compass update for one frame, starting from the current UKF state and anchor window."""
         inc = tick.inc
         self._window = self._window.extend(inc.dt, inc.distance, tick.residual)
@@ -180,27 +137,27 @@ class Localiser(GnssFusion):
         if tick.gnss:
             self._gnss_replay(tick)
 
-    def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
+    def _predict(self, tick: Tick, terms: ErrorTerms) -> None:
         """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
         p, inc = self.p, tick.inc
         s_f, s_l = process_sigmas(terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
         Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
 
-    def _odometry_sigma(self, tick: _Tick) -> float:
+    def _odometry_sigma(self, tick: Tick) -> float:
         """The smoother's isotropic odometry sigma for this frame, metres: 1/2 (sigma_fwd + sigma_lat) of the
         paper's process noise (Sec. III-G uses the filter's own noise)."""
         p = self.p
         s_f, s_l = process_sigmas(tick.terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
         return 0.5 * (s_f + s_l)
 
-    def _after_heading(self, tick: _Tick) -> None:
+    def _after_heading(self, tick: Tick) -> None:
         """Hook for measurement updates after the compass (taco+: zero-velocity update); none in paper mode."""
 
-    def _open_tick(self, tick: _Tick) -> None:
+    def _open_tick(self, tick: Tick) -> None:
         """Hook before a new frame is advanced (taco+: stationary flag); none in paper mode."""
 
-    def _close_tick(self, tick: _Tick) -> None:
+    def _close_tick(self, tick: Tick) -> None:
         """Hook after a new frame joined the history (taco+: speed-error feedback); none in paper mode."""
 
     # ------------------------------------------------------------------ trigger and search
@@ -279,7 +236,7 @@ class Localiser(GnssFusion):
         return fix_sigmas(w, p.ukf.fix_fwd_num, p.ukf.fix_fwd_min_m, p.ukf.fix_fwd_max_m, p.ukf.fix_lat_num, p.ukf.fix_lat_min_m,
                           p.ukf.fix_lat_max_m, p.ukf.anisotropic if anisotropic is None else anisotropic)
 
-    def _fuse(self, tick: _Tick | None, xy: np.ndarray, s_f: float, s_l: float,
+    def _fuse(self, tick: Tick | None, xy: np.ndarray, s_f: float, s_l: float,
               heading: tuple[float, float] | None = None) -> float:
         """Apply a fix (ENU m, body sigmas m; taco+: with the true heading it measures, (ENU rad, 1-sigma rad)) on
         arrival or at its capture frame `tick` (then required), record it for the smoother; returns the NIS."""
@@ -304,13 +261,13 @@ class Localiser(GnssFusion):
             return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, self.t))
         return q
 
-    def _capture_tick(self, q: FixQuery) -> _Tick | None:
+    def _capture_tick(self, q: FixQuery) -> Tick | None:
         """The history frame a fix for `q` applies at: the latest (on arrival) or the capture frame."""
         if self.p.latency.apply_on_arrival:
             return self._history[-1] if self._history else None
         return next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
 
-    def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: _Tick | None,
+    def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: Tick | None,
                    heading: tuple[float, float] | None = None) -> float:
         R = fix_covariance(float(self.ukf.x[2]), s_f, s_l)
         nis = self.ukf.update_position(xy, R)
@@ -326,7 +283,7 @@ class Localiser(GnssFusion):
             self._graph_x[tick.node] = tick.x[:3].copy()
         return nis
 
-    def _apply_at(self, tick: _Tick, xy: np.ndarray, s_f: float, s_l: float,
+    def _apply_at(self, tick: Tick, xy: np.ndarray, s_f: float, s_l: float,
                   heading: tuple[float, float] | None = None) -> float:
         """Rewind to `tick`, update there, reset the anchor there, replay the later frames."""
         self.ukf.set_state(tick.x, tick.P)
@@ -348,7 +305,7 @@ class Localiser(GnssFusion):
                 self._graph_x[h.node] = h.x[:3].copy()
         return nis
 
-    def _replay(self, later: list[_Tick], pre_x: float, pre_y: float) -> tuple[float, float]:
+    def _replay(self, later: list[Tick], pre_x: float, pre_y: float) -> tuple[float, float]:
         """Advance the history frames `later` again from the filter's current state, the dead-reckoned
         position carried from (pre_x, pre_y) ENU m along their increments; returns where it ends."""
         for h in later:

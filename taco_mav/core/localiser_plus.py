@@ -16,13 +16,14 @@ from typing import Sequence
 
 import numpy as np
 
+from taco_mav.core.answer_hold import AnswerHoldMixin
 from taco_mav.core.camera_speed import CameraSpeedMixin
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.gate import yaw_residual
-from taco_mav.core.answer_hold import AnswerHoldMixin
 from taco_mav.core.gnss_plus import GnssPlusMixin
 from taco_mav.core.imu_check import UnaidedTrack
-from taco_mav.core.localiser import FixOutcome, Localiser, _Tick
+from taco_mav.core.frames import FixOutcome, Tick
+from taco_mav.core.localiser import Localiser
 from taco_mav.core.lock import LockMonitor, LockState
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, defer_answer,
@@ -121,7 +122,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         return (d is not None and d[1] and self.t - d[0] <= self.q.drive_command_timeout_s
                 or self.t <= self._camera_moving_until)
 
-    def _open_tick(self, tick: _Tick) -> None:
+    def _open_tick(self, tick: Tick) -> None:
         inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
         mid = tick.theta_start + 0.5 * inc.d_theta
         ux, uy = self._track_unit
@@ -147,13 +148,13 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         """The speed was just observed (a stop, a fix) with this 1-sigma, m/s."""
         self._speed_seen_t, self._speed_seen_sigma = self.t, sigma_mps
 
-    def _predict(self, tick: _Tick, terms: ErrorTerms) -> None:
+    def _predict(self, tick: Tick, terms: ErrorTerms) -> None:
         inc = tick.inc
         dt = max(inc.dt, 1e-6)
         Q = process_noise_plus(float(self.ukf.x[2]), dt, inc.distance, self.q, n=len(self.ukf.x))
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
 
-    def _odometry_sigma(self, tick: _Tick) -> float:
+    def _odometry_sigma(self, tick: Tick) -> float:
         """The smoother's odometry sigma for this frame, metres: taco+'s own position process noise plus what
         the speed-error uncertainty moves the frame by (sigma_dv dt), instead of the paper's >= 1 m."""
         inc = tick.inc
@@ -161,13 +162,13 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         return max(math.sqrt(0.5 * float(np.trace(Q[:2, :2]))) + math.sqrt(max(float(tick.P[3, 3]), 0.0)) * inc.dt,
                    1e-3)
 
-    def _after_heading(self, tick: _Tick) -> None:
+    def _after_heading(self, tick: Tick) -> None:
         if tick.stationary:  # true speed 0: dv = -(preintegrated speed at the frame end)
             self.ukf.update_speed_error(-tick.inc.speed_end, self.q.zupt_sigma_mps)
         if tick.dv_fed:
             self.ukf.x[3] -= tick.dv_fed
 
-    def _close_tick(self, tick: _Tick) -> None:
+    def _close_tick(self, tick: Tick) -> None:
         self._odo += tick.inc.distance
         self._feedback(tick)
         if self.q.gyro_heading:  # the gyro integrates on from the filter's heading
@@ -175,7 +176,7 @@ class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlu
         if self.q.guard:
             self._guard()
 
-    def _feedback(self, tick: _Tick) -> None:
+    def _feedback(self, tick: Tick) -> None:
         """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""
         old = self.pre.speed
         new = old + float(self.ukf.x[3])

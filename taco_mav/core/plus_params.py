@@ -59,7 +59,7 @@ class PlusParams:
     # state's, integrated over the time since, 3 sigma, plus zupt_speed_max_mps. Also the IMU-only track's.
     imu_accel_sigma_mps2: float = field(default=0.05, metadata=bounded(0.0))
     # Speed from the camera (issue 19, not in the paper): ground-plane motion between two frames 0.3 s apart,
-    # every 0.5 s (link/motion.py), as a speed measurement; camera_speed_scale_sigma: its 1-sigma scale error
+    # every 0.5 s (daemon/motion.py), as a speed measurement; camera_speed_scale_sigma: its 1-sigma scale error
     # (a 3 cm error in a 1 m mount height is 3 %), beside the correlation's own. Needs a camera.
     camera_speed: bool = True
     camera_speed_scale_sigma: float = field(default=0.03, metadata=bounded(0.0))

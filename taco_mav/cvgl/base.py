@@ -22,7 +22,7 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.core.types import MatchResult
 
 __all__ = ["Crop", "GroundFrame", "Matcher", "MatchResult"]

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 import scipy.fft as sfft
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import ClassicalMatcherConfig
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame

@@ -44,8 +44,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from taco_mav.config import EmulatorConfig
-from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.core.types import MatchResult
+from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.errors import ConfigError
 from taco_mav.geo import wrap_angle as _wrap
 

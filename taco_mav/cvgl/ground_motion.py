@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.cvgl.ipm import BevProjector
 
 log = logging.getLogger(__name__)

@@ -6,7 +6,7 @@ Frames and units:
   ((W - 1) / 2, H - 1). Forward is image-up, left is image-left, the same heading-up convention as the
   satellite crops: BEV pixel (i, j) shows the ground at forward = (v0 - j) m, left = (u0 - i) m, with m the
   BEV resolution in metres per pixel.
-- camera pixels follow `taco_mav.camera_geometry.GroundCamera` (flat ground, mount height, pitch).
+- camera pixels follow `taco_mav.camera.geometry.GroundCamera` (flat ground, mount height, pitch).
 
 The remap maps are computed once. Near the vehicle one BEV pixel spans many camera pixels, so rows of the BEV
 whose camera footprint exceeds 2^k pixels sample level k of a Gaussian image pyramid (pyrDown) instead of the
@@ -21,7 +21,7 @@ import math
 import cv2
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.errors import DataError
 
 log = logging.getLogger(__name__)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 
 __all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
 

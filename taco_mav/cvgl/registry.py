@@ -5,7 +5,7 @@ Implementations are imported lazily so that, e.g., torch is only needed when the
 
 from __future__ import annotations
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import MATCHERS, Profile, frd_fwd_left
 from taco_mav.cvgl.base import Matcher
 from taco_mav.cvgl.emulator import TruthFn
@@ -33,7 +33,7 @@ def make_matcher(profile: Profile, truth: TruthFn | None = None, *, cross_area: 
         return EmulatorMatcher(profile.emulator, truth, cross_area=cross_area,
                                lever_fwd_left=frd_fwd_left(profile.camera.position_frd_m))
     if name == "fg2":
-        from taco_mav.cvgl.fg2 import Fg2Matcher
+        from taco_mav.cvgl.fg2.adapter import Fg2Matcher
 
         return Fg2Matcher(profile.fg2, camera)
     raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")

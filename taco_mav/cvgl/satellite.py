@@ -172,7 +172,7 @@ class SatelliteMap:
         """The geometry of `crop` without the pixels: the pyramid level, the affine M taking crop pixel (u, v, 1)
         to that level's pixel (x, y), the level pixel box the bilinear warp reads (unclipped, with a 2 px margin)
         and whether it lies wholly inside / wholly outside the level. `crop` and the device crops
-        (taco_mav/cvgl/device_crops.py) both warp with it. MapError for a non-finite centre or heading."""
+        (taco_mav/cvgl/fg2/device_crops.py) both warp with it. MapError for a non-finite centre or heading."""
         S = int(size_px)
         E0, N0 = float(centre_utm[0]), float(centre_utm[1])
         if not (math.isfinite(E0) and math.isfinite(N0) and math.isfinite(heading)):

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame, Matcher
 from taco_mav.cvgl.satellite import SatelliteMap
-from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.errors import OffMapError
 
 log = logging.getLogger(__name__)
@@ -47,7 +47,7 @@ def _check_results(results: object, n: int) -> list[MatchResult]:
 
 
 def uses_device_crops(matcher: object) -> bool:
-    """The matcher cuts its own crops on its device (taco_mav.cvgl.device_crops.GeometryMatcher, switched on by
+    """The matcher cuts its own crops on its device (taco_mav.cvgl.fg2.device_crops.GeometryMatcher, switched on by
     fg2.device_crops); checked by attribute so that torch is not imported here."""
     return (bool(getattr(matcher, "device_crops", False)) and callable(getattr(matcher, "cut_crops", None))
             and callable(getattr(matcher, "match_crops", None)))

@@ -13,7 +13,7 @@ from typing import Iterator, Protocol
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.core.types import ImuSample
 
 

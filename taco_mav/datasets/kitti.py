@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix
 from taco_mav.datasets.kitti_io import (

@@ -25,12 +25,12 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from taco_mav.camera_geometry import GroundCamera  # noqa: E402
+from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.core.preintegration import enu_heading  # noqa: E402
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix  # noqa: E402
 from taco_mav.errors import DataError  # noqa: E402
 from taco_mav.geo import UtmProjector, utm_epsg_for, wrap_angle  # noqa: E402
-from taco_mav.link.decoders import IMU_MESSAGES, AttitudeReading, Decoders  # noqa: E402
+from taco_mav.mavlink.decoders import IMU_MESSAGES, AttitudeReading, Decoders  # noqa: E402
 
 __all__ = ["TlogDrive", "load_tlog"]
 

@@ -1,4 +1,4 @@
-"""Camera speed in an offline run (issue 19's measurement, as the daemon takes it in `link/motion.py`): every
+"""Camera speed in an offline run (issue 19's measurement, as the daemon takes it in `daemon/motion.py`): every
 `interval_s` of IMU time, the ground-plane motion between the drive's frames nearest t - lag - gap and t - lag
 (`cvgl.ground_motion.GroundMotion`) goes to taco+'s `add_ground_motion`. The daemon measures on a worker
 thread; here it is measured at once, so a re-run gives the same numbers. Without it an offline taco+ run on a
@@ -16,7 +16,7 @@ from collections import Counter
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 from taco_mav.datasets.base import Drive
 

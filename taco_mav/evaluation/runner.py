@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
-from taco_mav.core.localiser import FixOutcome
+from taco_mav.core.frames import FixOutcome
 from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
@@ -118,7 +118,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     dead_xy = np.zeros((len(imu), 2))
     reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
-    # taco+'s camera speed, as the daemon feeds it (link/motion.py), on a drive with camera frames
+    # taco+'s camera speed, as the daemon feeds it (daemon/motion.py), on a drive with camera frames
     motion = None
     if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser) and profile.plus.camera_speed \
             and len(drive.frame_times) >= 2:

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.core.localiser import FixOutcome
-from taco_mav.evaluation.metrics import (coverage, fix_errors, h_acc_from_var, path_length_m, position_errors,
-                                         rmse, steady_state_rmse, track_errors)
+from taco_mav.core.frames import FixOutcome
+from taco_mav.evaluation.metrics import (coverage, fix_errors, h_acc_from_var, path_length_m, position_errors, rmse,
+                                         steady_state_rmse, track_errors)
 from taco_mav.evaluation.runner import DriveRun
 
 REPRESENTATIVE = ("00", "02", "05", "06", "08", "10")

@@ -104,8 +104,8 @@ def soak(hours: float = 1.0, speed: float = 20.0, log_dir: Path | None = None, s
     document (see the module docstring). log_dir: where the daemon writes its logs (a temporary folder by
     default, removed afterwards)."""
     from taco_mav.config import load_profile, replace_in
-    from taco_mav.link.connection import free_udp_port
-    from taco_mav.link.daemon import Daemon, DaemonOptions
+    from taco_mav.daemon.daemon import Daemon, DaemonOptions
+    from taco_mav.mavlink.connection import free_udp_port
     from taco_mav.sim import Simulator
     from taco_mav.sim.simulator import SimOptions
 

@@ -32,7 +32,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError, TacoError  # noqa: E402
-from taco_mav.link.mavconst import GPS_TYPE_MAV  # noqa: E402
+from taco_mav.mavlink.mavconst import GPS_TYPE_MAV  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.clock import SimClock  # noqa: E402
 from taco_mav.sim.gps_mav import GpsInputMonitor  # noqa: E402

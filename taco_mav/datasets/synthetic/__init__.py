@@ -1,7 +1,7 @@
 """Synthetic worlds: a procedural satellite mosaic and a drive through it, written in KITTI raw layout
 (`build_world`), and read back as a `Drive` whose frames are rendered on demand (`load_world`).
 
-Importing this package registers the `world:DIR` camera scheme with `taco_mav.camera.open_camera`
+Importing this package registers the `world:DIR` camera scheme with `taco_mav.camera.sources.open_camera`
 (`world_camera.WorldSource`, rendering the world at the simulator's true pose). The import is light: the world
 builder and the renderers load when first used, so a daemon that only needs the camera scheme starts quickly."""
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import rasterio
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix
 from taco_mav.datasets.kitti import KittiDrive, load_drive

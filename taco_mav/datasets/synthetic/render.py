@@ -3,7 +3,7 @@
 Frames and units:
 - world: UTM easting/northing metres (ENU); pose (E, N, theta) with theta the heading in ENU radians
   (0 = east, CCW positive); the camera sits above (E, N) looking along theta.
-- vehicle ground frame: (forward, left) metres, origin below the camera (see `taco_mav.camera_geometry`).
+- vehicle ground frame: (forward, left) metres, origin below the camera (see `taco_mav.camera.geometry`).
 - mosaic: a north-up RGB array (H, W, 3) uint8 with a rasterio `Affine` mapping (col, row) of pixel corners to
   (E, N); pixel (i, j) covers [i, i+1) x [j, j+1) so its centre is at (i + 0.5, j + 0.5). OpenCV samples pixel i
   at coordinate i, hence the -0.5 shift below.
@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 from rasterio.transform import Affine
 
-from taco_mav.camera_calibration import LensCalibration, lens_maps, wide_pinhole
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.calibration import LensCalibration, lens_maps, wide_pinhole
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.errors import DataError
 
 log = logging.getLogger(__name__)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.datasets.synthetic.scene3d import CAR_RGB, Scene3D, car_mesh, moving_cars_at
 from taco_mav.datasets.synthetic.shaders3d import DEPTH_FS, DEPTH_VS, FS, SKY_FS, SKY_VS, VS
 from taco_mav.errors import DataError

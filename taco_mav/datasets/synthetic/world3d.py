@@ -34,7 +34,7 @@ import rasterio
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.datasets.synthetic import paint
 from taco_mav.datasets.synthetic.layout import Scene
 from taco_mav.datasets.synthetic.mosaic import Canvas, Material, write_geotiff
@@ -229,7 +229,7 @@ class LensRenderer3D:
 
     def __init__(self, world_dir: Path, lens, mount_height_m: float, pitch_rad: float = 0.0,
                  meta: dict[str, Any] | None = None) -> None:
-        from taco_mav.camera_calibration import lens_maps, wide_pinhole
+        from taco_mav.camera.calibration import lens_maps, wide_pinhole
 
         K, w, h = wide_pinhole(lens)
         self.lens = lens

@@ -1,8 +1,8 @@
 """The `--camera world:DIR` source: renders a synthetic world (flat or 3-D) at the simulator's true pose
 (SIMSTATE), for simulation only.
 
-It lives here, beside the renderers it draws with, and not in `taco_mav.camera`: the camera layer (and the
-daemon's link layer above it) never imports datasets. `taco_mav.camera.open_camera` finds the `world:` scheme in
+It lives here, beside the renderers it draws with, and not in `taco_mav.camera.sources`: the camera layer (and the
+daemon's link layer above it) never imports datasets. `taco_mav.camera.sources.open_camera` finds the `world:` scheme in
 its registry, which `register_world_camera` fills; importing `taco_mav.datasets.synthetic` registers it, and the
 top layer (CLI commands, demo) does so before it starts a daemon.
 """
@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from taco_mav.camera import ClockDomain, register_camera_scheme
-from taco_mav.camera_calibration import LensCalibration
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.calibration import LensCalibration
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.sources import ClockDomain, register_camera_scheme
 from taco_mav.errors import ConfigError
 
 if TYPE_CHECKING:

@@ -11,12 +11,12 @@ import random
 import numpy as np
 import torch
 import torch.nn as nn
-from torch.nn import functional as F
-from mmcv.ops.multi_scale_deform_attn import MultiScaleDeformableAttention  # noqa: F401
 from mmcv.cnn.bricks.transformer import FFN
-from models.modules import DeepResBlock_desc, EMBED_DIM
-from models.modules import self_attention_kitti as self_attention
+from mmcv.ops.multi_scale_deform_attn import MultiScaleDeformableAttention  # noqa: F401
+from models.modules import EMBED_DIM, DeepResBlock_desc
 from models.modules import cross_attention_kitti as cross_attention
+from models.modules import self_attention_kitti as self_attention
+from torch.nn import functional as F
 
 config = configparser.ConfigParser()
 config.read("./config.ini")

@@ -10,10 +10,9 @@ import configparser
 
 import numpy as np
 import torch
-from torch import nn
-from mmcv.ops.multi_scale_deform_attn import MultiScaleDeformableAttention
-
 from DINO_modules.dinov2 import vit_large
+from mmcv.ops.multi_scale_deform_attn import MultiScaleDeformableAttention
+from torch import nn
 from utils.utils import desc_l2norm
 
 config = configparser.ConfigParser()

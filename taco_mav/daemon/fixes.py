@@ -32,25 +32,25 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from taco_mav.camera import CameraSource, ClockDomain, FrameGuard, open_camera
-from taco_mav.camera_calibration import FrameRectifier
-from taco_mav.camera_geometry import GroundCamera
-from taco_mav.camera_horizon import HorizonCheck
+from taco_mav.camera.calibration import FrameRectifier
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.horizon import HorizonCheck
+from taco_mav.camera.sources import CameraSource, ClockDomain, FrameGuard, open_camera
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
+from taco_mav.daemon.eventlog import EventLog
+from taco_mav.daemon.worker import FetchFn, MatchWorker, WorkResult
 from taco_mav.errors import ConfigError
-from taco_mav.link import encoders
-from taco_mav.link.decoders import SimPose
-from taco_mav.link.eventlog import EventLog
-from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
-from taco_mav.link.timesync import ClockMap
-from taco_mav.link.worker import FetchFn, MatchWorker, WorkResult
+from taco_mav.mavlink import encoders
+from taco_mav.mavlink.decoders import SimPose
+from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
+from taco_mav.mavlink.timesync import ClockMap
 
 if TYPE_CHECKING:
-    from taco_mav.link.options import DaemonOptions
+    from taco_mav.daemon.options import DaemonOptions
 
 log = logging.getLogger(__name__)
 

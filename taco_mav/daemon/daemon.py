@@ -29,29 +29,29 @@ from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dic
 from taco_mav.core import ukf_kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
+from taco_mav.daemon.anchor import Anchor, OriginCandidate, OriginChooser
+from taco_mav.daemon.daemon_inputs import DaemonInputs
+from taco_mav.daemon.daemon_origin import DaemonOrigin
+from taco_mav.daemon.daemon_outputs import DaemonOutputs
+from taco_mav.daemon.drive import DriveCommand
+from taco_mav.daemon.eventlog import EventLog
+from taco_mav.daemon.fixes import FixPipeline
+from taco_mav.daemon.gcs import GCS_HEALTH_HZ, GcsHealth
+from taco_mav.daemon.gnss import GnssTracker
+from taco_mav.daemon.health import LinkWatch
+from taco_mav.daemon.imu_source import InputSources
+from taco_mav.daemon.imu_timeline import ImuTimeline
+from taco_mav.daemon.motion import MotionPipeline
+from taco_mav.daemon.options import DaemonOptions, DaemonStats
+from taco_mav.daemon.output import OutputStage
+from taco_mav.daemon.scheduler import AutopilotPeriodic, Periodic
 from taco_mav.errors import ConfigError
-from taco_mav.link.anchor import Anchor, OriginCandidate, OriginChooser
-from taco_mav.link.connection import Link
-from taco_mav.link.daemon_inputs import DaemonInputs
-from taco_mav.link.daemon_origin import DaemonOrigin
-from taco_mav.link.daemon_outputs import DaemonOutputs
-from taco_mav.link.decoders import IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders, ImuReading
-from taco_mav.link.drive import DriveCommand
-from taco_mav.link.eventlog import EventLog
-from taco_mav.link.fixes import FixPipeline
-from taco_mav.link.gcs import GCS_HEALTH_HZ, GcsHealth
-from taco_mav.link.gnss import GnssTracker
-from taco_mav.link.health import LinkWatch
-from taco_mav.link.imu_source import InputSources
-from taco_mav.link.imu_timeline import ImuTimeline
-from taco_mav.link.mavconst import MAV_AUTOPILOT_PX4, SEV_INFO, SEV_NOTICE
-from taco_mav.link.motion import MotionPipeline
-from taco_mav.link.options import DaemonOptions, DaemonStats
-from taco_mav.link.output import OutputStage
-from taco_mav.link.reconnect import pace_tcp_reconnect
-from taco_mav.link.requests import GNSS_RATES, MessageRequest, ParamCheck, StreamRequester, ekf3_gate_warnings
-from taco_mav.link.scheduler import AutopilotPeriodic, Periodic
-from taco_mav.link.timesync import ClockMap
+from taco_mav.mavlink.connection import Link
+from taco_mav.mavlink.decoders import IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders, ImuReading
+from taco_mav.mavlink.mavconst import MAV_AUTOPILOT_PX4, SEV_INFO, SEV_NOTICE
+from taco_mav.mavlink.reconnect import pace_tcp_reconnect
+from taco_mav.mavlink.requests import GNSS_RATES, MessageRequest, ParamCheck, StreamRequester, ekf3_gate_warnings
+from taco_mav.mavlink.timesync import ClockMap
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from taco_mav.core.types import Estimate
-from taco_mav.link.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
+from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
 
 __all__ = ["CAMERA_FAULTS", "GCS_HEALTH_HZ", "GNSS_CODES", "GcsHealth", "GcsReport", "TacoMode"]
 

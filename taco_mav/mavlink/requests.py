@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from pymavlink import mavutil
 
-from taco_mav.link.mavconst import GPS_TYPE_MAV
+from taco_mav.mavlink.mavconst import GPS_TYPE_MAV
 
 log = logging.getLogger(__name__)
 m = mavutil.mavlink

@@ -37,7 +37,7 @@ import yaml
 from taco_mav.errors import ConfigError
 
 if TYPE_CHECKING:
-    from taco_mav.config import CameraConfig
+    from taco_mav.config.sensors import CameraConfig
 
 log = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from taco_mav.link.appendlog import AppendLog
+from taco_mav.mavlink.appendlog import AppendLog
 
 
 def _plain(value: Any) -> Any:

@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from taco_mav.link import encoders
-from taco_mav.link.mavconst import SEV_INFO, SEV_WARNING
+from taco_mav.mavlink import encoders
+from taco_mav.mavlink.mavconst import SEV_INFO, SEV_WARNING
 
 if TYPE_CHECKING:
-    from taco_mav.link.daemon import Daemon
+    from taco_mav.daemon.daemon import Daemon
 
 log = logging.getLogger(__name__)
 

@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from taco_mav.core.types import GnssFix, GnssOutcome
-from taco_mav.link.decoders import GnssReading
-from taco_mav.link.encoders import Origin
-from taco_mav.link.mavconst import GPS_TYPE_MAV, GPS_TYPE_NONE, SEV_NOTICE, SEV_WARNING
+from taco_mav.mavlink.decoders import GnssReading
+from taco_mav.mavlink.encoders import Origin
+from taco_mav.mavlink.mavconst import GPS_TYPE_MAV, GPS_TYPE_NONE, SEV_NOTICE, SEV_WARNING
 
 log = logging.getLogger(__name__)
 

@@ -18,10 +18,10 @@ import numpy as np
 
 from taco_mav.config import Profile
 from taco_mav.core.types import Estimate
+from taco_mav.daemon.health import Health, stall_sigma
 from taco_mav.errors import ConfigError
-from taco_mav.link import encoders
-from taco_mav.link.decoders import AttitudeReading
-from taco_mav.link.health import Health, stall_sigma
+from taco_mav.mavlink import encoders
+from taco_mav.mavlink.decoders import AttitudeReading
 
 __all__ = ["GNSS_OUTPUTS", "OUTPUTS", "OutputStage"]
 

@@ -2,7 +2,7 @@
 
 FG2's `models/model_kitti.py` and `models/modules.py` import `mmcv.ops.multi_scale_deform_attn.
 MultiScaleDeformableAttention` and `mmcv.cnn.bricks.transformer.FFN`. The FG2 import scope
-(`fg2_shim.fg2_import_scope`) puts this module's classes into sys.modules under those names while FG2 is imported
+(`shim.fg2_import_scope`) puts this module's classes into sys.modules under those names while FG2 is imported
 when the device is not CUDA, or when mmcv is not installed (mmcv 2.x has no wheels for recent torch releases; a
 source build needs nvcc matching torch's CUDA). They are written after mmcv 2.x (open-mmlab/mmcv,
 `mmcv/ops/multi_scale_deform_attn.py`, `mmcv/cnn/bricks/transformer.py`): the same constructor arguments,
@@ -168,7 +168,7 @@ class FFN(nn.Module):
 
 def stand_in_modules() -> dict[str, types.ModuleType]:
     """Module objects for MODULE_NAMES, ready to be put into sys.modules."""
-    mods = {name: types.ModuleType(name, "taco_mav's stand-in for mmcv (taco_mav.cvgl.fg2_mmcv)")
+    mods = {name: types.ModuleType(name, "taco_mav's stand-in for mmcv (taco_mav.cvgl.fg2.mmcv)")
             for name in MODULE_NAMES}
     for name in MODULE_NAMES:
         mods[name].__path__ = []  # a package, so submodules resolve through sys.modules

@@ -7,7 +7,7 @@ import struct
 import time
 from pathlib import Path
 
-from taco_mav.link.appendlog import AppendLog
+from taco_mav.mavlink.appendlog import AppendLog
 
 
 class TlogWriter(AppendLog):

@@ -12,15 +12,15 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from taco_mav.core.types import ImuSample
-from taco_mav.link.anchor import OriginCandidate
-from taco_mav.link.decoders import GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, POSE_MESSAGES
-from taco_mav.link.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S
-from taco_mav.link.imu_timeline import Verdict
-from taco_mav.link.mavconst import (MAV_AUTOPILOT_INVALID, MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER, SEV_ERROR,
-                                    SEV_WARNING)
+from taco_mav.daemon.anchor import OriginCandidate
+from taco_mav.daemon.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S
+from taco_mav.daemon.imu_timeline import Verdict
+from taco_mav.mavlink.decoders import GNSS_MESSAGES, IMU_MESSAGES, ORIGIN_MESSAGES, POSE_MESSAGES
+from taco_mav.mavlink.mavconst import (MAV_AUTOPILOT_INVALID, MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER, SEV_ERROR,
+                                       SEV_WARNING)
 
 if TYPE_CHECKING:
-    from taco_mav.link.daemon import Daemon
+    from taco_mav.daemon.daemon import Daemon
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ The model is any object with this interface (torch tensors, on the model's devic
 
 `load_model(cfg)` builds it through `cfg.entry` ("module:function", called as fn(checkout, checkpoint, device))
 with the user's FG2 checkout on sys.path while the entry is imported and called (removed afterwards); the
-default entry, `taco_mav.cvgl.fg2_shim`, wraps the published FG2 model. `taco_mav.cvgl.fg2_tiny` is a small
+default entry, `taco_mav.cvgl.fg2.shim`, wraps the published FG2 model. `taco_mav.cvgl.fg2.tiny` is a small
 model with the same interface that the tests save and load through the same path. torch is imported lazily:
 without it, the package works and only this matcher raises MatcherError.
 """
@@ -32,7 +32,7 @@ from typing import Any, Iterator, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import Fg2Config
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
@@ -166,7 +166,7 @@ class Fg2Matcher:
     @property
     def device_crops(self) -> bool:
         """The profile switch fg2.device_crops: callers then hand the map and the crop geometry to `cut_crops`
-        and `match_crops` (the GeometryMatcher capability, taco_mav/cvgl/device_crops.py) instead of crops."""
+        and `match_crops` (the GeometryMatcher capability, taco_mav/cvgl/fg2/device_crops.py) instead of crops."""
         return bool(getattr(self.cfg, "device_crops", False))
 
     def cut_crops(self, sat_map: Any, centres_utm: np.ndarray, heading: float, size_px: int,
@@ -174,7 +174,7 @@ class Fg2Matcher:
         """The K heading-up crops of a trigger resampled on this matcher's device (`DeviceCropper.cut`: same
         geometry and off-map rules as `SatelliteMap.crop`; off-map ones are flagged, not raised)."""
         if self._cropper is None:
-            from taco_mav.cvgl.device_crops import DeviceCropper
+            from taco_mav.cvgl.fg2.device_crops import DeviceCropper
 
             self._cropper = DeviceCropper(self.device)
         with _torch().no_grad():  # not inference_mode: the cropper keeps a mosaic tensor across calls

@@ -1,4 +1,4 @@
-"""`PublishedFg2`: the published FG2 KITTI model (vita-epfl/FG2) behind the `taco_mav.cvgl.fg2` interface.
+"""`PublishedFg2`: the published FG2 KITTI model (vita-epfl/FG2) behind the `taco_mav.cvgl.fg2.adapter` interface.
 
 FG2's frames (read from its `kitti_train_test.py` and `utils/utils.py`): the aerial image is a square of
 `grid_size_h` metres (99 m for KITTI) fed at `satellite_image_size` px; both BEV point planes use metric (x, y)
@@ -16,7 +16,7 @@ and converts: vehicle (x right, y down) crop pixels = (-t_col, -t_row) / m_per_p
 inverse of R with the axes swapped; mass = the coupling mass within INLIER_M of the fitted pose, divided by the
 number of ground points the camera sees (so in [0, 1]).
 
-`fast` (default) replaces FG2's `CVM.forward` by `fg2_fast`'s equivalent (ground branch once per trigger, computed
+`fast` (default) replaces FG2's `CVM.forward` by `fast`'s equivalent (ground branch once per trigger, computed
 in `encode_ground`; heights batched; SDPA in DINOv2); precisions: camera_k, crop resampling, CVM, pose and mass in
 fp32 with autocast off; DINOv2 in FG2's fp16 on CUDA and fp32 elsewhere (`dinov2_precision_for`).
 """
@@ -31,7 +31,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from taco_mav.cvgl import fg2_fast
+from taco_mav.cvgl.fg2 import fast as fg2_fast
 from taco_mav.cvgl.procrustes import weighted_procrustes_2d
 from taco_mav.errors import MatcherError
 
@@ -102,9 +102,9 @@ class GroundFeatures(NamedTuple):
 
 class PublishedFg2(nn.Module):
     """extractor: FG2's `DinoExtractor` (images -> DINOv2 patch features); cvm: FG2's `CVM`; settings: its
-    config; fast: the fast path (`fg2_fast`: ground branch once per trigger, heights batched, SDPA in DINOv2)
+    config; fast: the fast path (`fast.py`: ground branch once per trigger, heights batched, SDPA in DINOv2)
     instead of FG2's own `CVM.forward` per crop; same outputs within float tolerance. Implements
-    `encode_ground` / `match_aerial` of `taco_mav.cvgl.fg2`."""
+    `encode_ground` / `match_aerial` of `taco_mav.cvgl.fg2.adapter`."""
 
     def __init__(self, extractor: nn.Module, cvm: nn.Module, settings: Fg2Settings, fast: bool = True) -> None:
         super().__init__()

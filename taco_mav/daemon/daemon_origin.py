@@ -9,14 +9,14 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any
 
-from taco_mav.link import encoders
-from taco_mav.link.anchor import GNSS_RANK, NO_ORIGIN_TEXTS, OriginCandidate
-from taco_mav.link.decoders import GNSS_MESSAGES, GnssReading
-from taco_mav.link.gnss import GnssEvent
-from taco_mav.link.mavconst import SEV_INFO, SEV_WARNING
+from taco_mav.daemon.anchor import GNSS_RANK, NO_ORIGIN_TEXTS, OriginCandidate
+from taco_mav.daemon.gnss import GnssEvent
+from taco_mav.mavlink import encoders
+from taco_mav.mavlink.decoders import GNSS_MESSAGES, GnssReading
+from taco_mav.mavlink.mavconst import SEV_INFO, SEV_WARNING
 
 if TYPE_CHECKING:
-    from taco_mav.link.daemon import Daemon
+    from taco_mav.daemon.daemon import Daemon
 
 log = logging.getLogger(__name__)
 

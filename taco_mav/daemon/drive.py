@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from taco_mav.link.mavconst import MAV_AUTOPILOT_PX4, MAV_MODE_FLAG_SAFETY_ARMED
+from taco_mav.mavlink.mavconst import MAV_AUTOPILOT_PX4, MAV_MODE_FLAG_SAFETY_ARMED
 
 __all__ = ["DRIVE_THROTTLE_MIN_PCT", "PX4_HOLDING_MODES", "DriveCommand"]
 

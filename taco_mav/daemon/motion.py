@@ -20,11 +20,11 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from taco_mav.camera import FrameGuard, FrameRejected
+from taco_mav.camera.sources import FrameGuard, FrameRejected
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 
 if TYPE_CHECKING:
-    from taco_mav.link.fixes import FixPipeline
+    from taco_mav.daemon.fixes import FixPipeline
 
 log = logging.getLogger(__name__)
 

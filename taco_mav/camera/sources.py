@@ -17,8 +17,8 @@ ConfigError naming the spec (a typo, or a scheme whose package was not imported)
 capture time), corrupt (unreadable file), wrong shape, blank (uniform: lens cap, dead sensor) and frozen
 (bit-identical to the previous frame at another time) frames are rejected with `FrameRejected(reason)`. With a
 `FrameRectifier` it also undistorts frames and rescales frames of another size with the model's aspect (the one
-place frames are rectified, `taco_mav.camera_calibration`), refuses a source of another aspect at start-up
-(`check_source`), and may watch the horizon against the profile's pitch (`taco_mav.camera_horizon`).
+place frames are rectified, `taco_mav.camera.calibration`), refuses a source of another aspect at start-up
+(`check_source`), and may watch the horizon against the profile's pitch (`taco_mav.camera.horizon`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,9 @@ from typing import Callable, Protocol
 import cv2
 import numpy as np
 
-from taco_mav.camera_calibration import FrameRectifier, LensCalibration
-from taco_mav.camera_geometry import GroundCamera
-from taco_mav.camera_horizon import HorizonCheck, HorizonWarning
+from taco_mav.camera.calibration import FrameRectifier, LensCalibration
+from taco_mav.camera.geometry import GroundCamera
+from taco_mav.camera.horizon import HorizonCheck, HorizonWarning
 from taco_mav.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)

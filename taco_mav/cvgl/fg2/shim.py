@@ -10,7 +10,7 @@ first on sys.path, and both are restored afterwards (as are the RNG states and t
 FG2's imports set globally). FG2's bare top-level names leave sys.modules again, but its modules stay registered
 as `taco_mav_fg2_<n>.<name>` so that torch.compile, which re-imports a traced function's module by name for its
 guards, finds them. mmcv: its CUDA kernel on CUDA when installed, else (and on every non-CUDA device)
-`taco_mav.cvgl.fg2_mmcv`, a PyTorch stand-in with mmcv's parameters and the CUDA kernel's semantics.
+`taco_mav.cvgl.fg2.mmcv`, a PyTorch stand-in with mmcv's parameters and the CUDA kernel's semantics.
 
 The model is built the way `kitti_train_test.py` builds it: seed, DinoExtractor, then CVM. A checkpoint saved
 from a model built on CUDA lacks `grd_grid_queries` (FG2 creates it with `.to(device)`, which unregisters it), so
@@ -24,19 +24,19 @@ import configparser
 import contextlib
 import importlib
 import itertools
-import types
 import logging
 import os
 import random
 import sys
+import types
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 import torch
 
-from taco_mav.cvgl.fg2_mmcv import mmcv_installed, stand_in_modules
-from taco_mav.cvgl.fg2_published import Fg2Settings, PublishedFg2, dinov2_precision_for
+from taco_mav.cvgl.fg2.mmcv import mmcv_installed, stand_in_modules
+from taco_mav.cvgl.fg2.published import Fg2Settings, PublishedFg2, dinov2_precision_for
 from taco_mav.errors import MatcherError
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,7 @@ FG2_PACKAGES = ("models", "utils", "att_layers", "DINO_modules", "dataloaders")
 # Keys the KITTI checkpoint may lack (unregistered on CUDA, see the module docstring).
 SEEDED_KEYS = ("grd_grid_queries",)
 INSTALL_HINTS = {
-    "mmcv": "mmcv 2.x with its CUDA ops (not mmcv-lite) is optional (taco_mav.cvgl.fg2_mmcv stands in): pip "
+    "mmcv": "mmcv 2.x with its CUDA ops (not mmcv-lite) is optional (taco_mav.cvgl.fg2.mmcv stands in): pip "
             "install -U openmim && mim install 'mmcv>=2.0.0' (matching your torch and CUDA versions)",
     "mmengine": "pip install mmengine (mmcv 2.x depends on it)",
     "matplotlib": "pip install matplotlib (FG2's models/modules.py imports it)",
@@ -244,7 +244,7 @@ def fg2_import_scope(checkout: Path, device: torch.device) -> Iterator[None]:
     stand_in = {} if device.type == "cuda" and mmcv_installed() else stand_in_modules()
     if stand_in:
         log.info("fg2: FG2's deformable attention and FFN run on taco_mav's PyTorch stand-in for mmcv "
-                 "(taco_mav.cvgl.fg2_mmcv; %s)", "mmcv is not installed" if not mmcv_installed()
+                 "(taco_mav.cvgl.fg2.mmcv; %s)", "mmcv is not installed" if not mmcv_installed()
                  else f"mmcv's own {device.type} path returns NaN for FG2's KITTI grid")
     owned = FG2_PACKAGES + (("mmcv",) if stand_in else ())
     shadowed = {k: sys.modules.pop(k) for k in list(sys.modules) if k.split(".")[0] in owned}

@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from taco_mav.camera import FrameRejected
+from taco_mav.camera.sources import FrameRejected
 from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.service import FixService

@@ -29,9 +29,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.errors import ConfigError, TacoError  # noqa: E402
-from taco_mav.link import signing  # noqa: E402
-from taco_mav.link.reconnect import open_tcp, pace_serial_reconnect  # noqa: E402
-from taco_mav.link.tlog import TlogWriter  # noqa: E402
+from taco_mav.mavlink import signing  # noqa: E402
+from taco_mav.mavlink.reconnect import open_tcp, pace_serial_reconnect  # noqa: E402
+from taco_mav.mavlink.tlog import TlogWriter  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from taco_mav.camera_geometry import GroundCamera
+from taco_mav.camera.geometry import GroundCamera
 
 __all__ = ["MapGap", "FrameGap", "alter_mosaic", "occlude_frame", "SEASONS"]
 

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from taco_mav.link.decoders import IMU_MESSAGES, MAX_GYRO, AttitudeReading, Decoders, ImuReading, euler_rates
+from taco_mav.mavlink.decoders import IMU_MESSAGES, MAX_GYRO, AttitudeReading, Decoders, ImuReading, euler_rates
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,9 @@ from taco_mav.core.localiser import Localiser
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.types import GnssFix
-from taco_mav.link import encoders
-from taco_mav.link.gnss import moved_from_origin
-from taco_mav.link.health import stall_sigma
+from taco_mav.daemon.gnss import moved_from_origin
+from taco_mav.daemon.health import stall_sigma
+from taco_mav.mavlink import encoders
 
 log = logging.getLogger(__name__)
 
