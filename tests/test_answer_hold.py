@@ -17,6 +17,8 @@ from taco_mav.core.ukf import fix_covariance
 
 CONFIRM = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=2.0, recover_confirm=True,
                                                              confirm_answers=3))
+# taco+ before issue 17's holds: every answer that passes the gates is applied at once
+NO_HOLD = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=0.0, recover_confirm=False))
 
 
 def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
@@ -46,7 +48,7 @@ def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
     def jumps_applied(loc):
         return [o for o in loc.outcomes if o.accepted and len(o.weights) > 5]
 
-    old = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=0.0, recover_confirm=False))
+    old = NO_HOLD
     loc_old, err_old, _ = run_plus(d, params=old, x0=40.0, planted=planted)
     first = jumps_applied(loc_old)[0]
     assert np.linalg.norm(first.xy - d.pose_at(first.capture_t)[:2]) > 10.0  # the chance peak relocalised
@@ -69,7 +71,7 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
     d = _drive()
     oracle = OracleMatcher(d, seed=2)
     out = {}
-    for name, params in (("old", PLUS), ("new", CONFIRM)):
+    for name, params in (("old", NO_HOLD), ("new", CONFIRM)):
         loc = make_localiser(params, 0.0, heading=float(d.theta[0]), speed=float(d.speed[0]))
         planted = None
         for smp in d.samples:
