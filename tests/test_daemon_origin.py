@@ -140,7 +140,7 @@ def test_origin_never_from_own_instance_and_no_origin_notice(world: Path, tmp_pa
     assert texts.count("TACO: no origin: set EKF origin/home in the GCS") == 3  # 3, 13, 23 s after the HEARTBEAT
     assert texts.count("TACO: or --origin LAT,LON[,ALT] or a GNSS 3D fix") == 3
     assert [e["notices"] for e in _events(tmp_path) if e["event"] == "no_origin"] == [1, 2, 3]
-    assert daemon.origin_request.sent >= 2 * 10  # GPS_GLOBAL_ORIGIN + HOME_POSITION every 2 s
+    assert daemon.origins.request.sent >= 2 * 10  # GPS_GLOBAL_ORIGIN + HOME_POSITION every 2 s
 
 
 def test_gps1_real_receiver_daemon_gps2(world: Path, tmp_path: Path) -> None:

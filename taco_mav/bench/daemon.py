@@ -40,7 +40,6 @@ from taco_mav.bench.fusion import _drive as _weaving_drive  # noqa: E402
 from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.core import ukf_kernels  # noqa: E402
 from taco_mav.daemon.daemon import Daemon, DaemonOptions  # noqa: E402
-from taco_mav.daemon.eventlog import EventLog  # noqa: E402
 from taco_mav.mavlink.connection import free_udp_port  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -60,22 +59,21 @@ def imu_path_latency(estimator: str = "paper", duration_s: float = IMU_PATH_S) -
     mav = mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     daemon = Daemon(profile_from_dict({"matcher": "emulator", "estimator": estimator}),
                     DaemonOptions(connect="udpin:127.0.0.1:0"))
-    daemon.events = EventLog(None)
-    daemon.anchor.set_origin(49.0, 8.4, 115.0, 10.0, 0.0)  # heading north at 10 m/s, as the drive starts
+    daemon.state.anchor.set_origin(49.0, 8.4, 115.0, 10.0, 0.0)  # heading north at 10 m/s, as the drive starts
     wall, cpu = [], []
     for k, s in enumerate(_weaving_drive(duration_s)):
         t_ap = 100.0 + s.t  # autopilot boot time, s
         if k % 2 == 0:
             att = mav.attitude_encode(int(round(t_ap * 1e3)), s.roll, s.pitch, s.yaw, 0.0, 0.0, 0.0)
-            daemon.attitude = daemon.sources.attitude_reading(att, daemon.decoders, daemon.clock()) or daemon.attitude
+            daemon.inputs.on_attitude(att, 0.0)
         ax, ay, az = (int(round(a / G0 * 1e3)) for a in s.accel_frd)  # mG
         gx, gy, gz = (int(round(g * 1e3)) for g in s.gyro_frd)  # mrad/s
         msg = mav.raw_imu_encode(int(round(t_ap * 1e6)), ax, ay, az, gx, gy, gz, 0, 0, 0)
         n = daemon.stats.imu_samples
         c0, start = time.thread_time(), time.perf_counter()
-        daemon._on_imu(msg, start)
-        if daemon.loc is not None:
-            daemon.loc.estimate()
+        daemon.inputs.on_imu(msg, start)
+        if daemon.state.loc is not None:
+            daemon.state.loc.estimate()
         stop, c1 = time.perf_counter(), time.thread_time()
         if daemon.stats.imu_samples > n:
             wall.append(stop - start)

@@ -325,6 +325,15 @@ class Localiser(GnssFusion):
         self._gnss_fix_outcome(outcome)
         return outcome
 
+    # ------------------------------------------------------------------ taco+'s inputs (paper mode: none)
+    def set_drive_command(self, t: float, driving: bool) -> None:
+        """Whether the autopilot drives at autopilot time t (s): taco+ vetoes its zero-velocity updates while it
+        does (`PlusLocaliser`); paper mode has none and ignores it."""
+
+    def take_lock_events(self) -> list[tuple[float, str, str]]:
+        """Loss-of-lock events not yet taken, (t s, kind, detail) each (taco+); paper mode keeps no lock."""
+        return []
+
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         """The current estimate: UKF position and heading at the last frame plus the displacement and turn

@@ -1,9 +1,11 @@
 """The daemon loop (`taco-mav run`): MAVLink IMU/attitude in, TACO Localiser, CVGL fixes from a worker thread,
 GPS-style position out at a steady rate.
 
-This module holds the lifecycle and the loop; the methods of one concern each live in a mixin: inputs
-(`daemon_inputs`: message dispatch, IMU, attitude), origin and re-anchoring (`daemon_origin`: start position,
-reboots, IMU gaps, real GNSS) and outputs (`daemon_outputs`: position messages, health, STATUSTEXT, summary).
+`Daemon` owns the lifecycle and a small loop over handlers, each owning its own state behind two hooks (the
+messages it takes, by type, and what it does when its time comes): `AutopilotLink` (adoption, our HEARTBEAT,
+time sync, stream requests, the parameter check, link liveness), `Inputs` (IMU, attitude, throttle, a
+simulator's pose), `OriginHandler` (the origin, real GNSS) and `Outputs` (position messages, health, the ground
+station's view). What they share is `LiveState` (origin, Localiser, latest readings) and one `Reporter`.
 
 Threads: the loop thread owns the Link and the Localiser (every Localiser call happens here); the fix pipeline
 (`fixes.FixPipeline`: camera, map, matcher worker) runs FixService.answer in the worker thread and posts results
@@ -25,40 +27,40 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
 from taco_mav.core import ukf_kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
-from taco_mav.daemon.anchor import Anchor, OriginCandidate, OriginChooser
-from taco_mav.daemon.daemon_inputs import DaemonInputs
-from taco_mav.daemon.daemon_origin import DaemonOrigin
-from taco_mav.daemon.daemon_outputs import DaemonOutputs
-from taco_mav.daemon.drive import DriveCommand
+from taco_mav.daemon.anchor import Anchor
+from taco_mav.daemon.autopilot import AutopilotLink
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.fixes import FixPipeline
-from taco_mav.daemon.gcs import GCS_HEALTH_HZ, GcsHealth
-from taco_mav.daemon.gnss import GnssTracker
-from taco_mav.daemon.health import LinkWatch
-from taco_mav.daemon.imu_source import InputSources
-from taco_mav.daemon.imu_timeline import ImuTimeline
+from taco_mav.daemon.inputs import Inputs
 from taco_mav.daemon.motion import MotionPipeline
 from taco_mav.daemon.options import DaemonOptions, DaemonStats
-from taco_mav.daemon.output import OutputStage
-from taco_mav.daemon.scheduler import AutopilotPeriodic, Periodic
+from taco_mav.daemon.origin import OriginHandler
+from taco_mav.daemon.outputs import Outputs
+from taco_mav.daemon.reporter import Reporter
+from taco_mav.daemon.state import LiveState
 from taco_mav.errors import ConfigError
+from taco_mav.mavlink import encoders
 from taco_mav.mavlink.connection import Link
-from taco_mav.mavlink.decoders import IMU_MESSAGES, ORIGIN_MESSAGES, AttitudeReading, Decoders, ImuReading
-from taco_mav.mavlink.mavconst import MAV_AUTOPILOT_PX4, SEV_INFO, SEV_NOTICE
+from taco_mav.mavlink.decoders import IMU_MESSAGES, Decoders
+from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE
 from taco_mav.mavlink.reconnect import pace_tcp_reconnect
-from taco_mav.mavlink.requests import GNSS_RATES, MessageRequest, ParamCheck, StreamRequester, ekf3_gate_warnings
+from taco_mav.mavlink.requests import ekf3_gate_warnings
 from taco_mav.mavlink.timesync import ClockMap
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
 
+Handler = Callable[[Any, float], None]
 
-class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
+
+class Daemon:
     """One daemon run. `run()` blocks until `stop()` (or a signal via `run_daemon`); `start()` runs it in a
     thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs); matcher:
     use this matcher instead of the profile's (tests, embedding)."""
@@ -85,23 +87,59 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
         self.stats = DaemonStats()
         self.decoders = Decoders()
         self.clockmap = ClockMap(clock)
-        self.output = OutputStage(profile, self._health_changed)
-        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self._status, matcher)
-        self.linkwatch = LinkWatch(options.link_timeout_s)
-        self.loc: Localiser | None = None
-        self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed)
-        self.anchor = Anchor(self.params)  # origin and Localiser generations (+1 at each re-anchoring)
-        self.attitude: AttitudeReading | None = None
-        self.imu_kind: str | None = None if profile.link.imu_message == "auto" else profile.link.imu_message
-        self.sources = InputSources(profile.link.imu_message)  # IMU and attitude streams: first valid, fallback
-        self.last_imu: ImuReading | None = None
-        self.drive = DriveCommand()  # armed / driving, from the autopilot's HEARTBEAT and VFR_HUD
-        self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
-        self._last_imu_clock = -math.inf
-        self._last_status: dict[str, float] = {}
-        self._thread: threading.Thread | None = None
-        self.exit_code: int | None = None
+        self.reporter = Reporter(clock, profile.output.statustext_interval_s)
+        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self.reporter.status, matcher)
+        self.state = LiveState(Anchor(self.params))
+        self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed), made when opened
+        assert options.link_timeout_s is not None
+        self.autopilot = AutopilotLink(profile, self.clockmap, self.reporter, options.link_timeout_s, self._wants_pose)
+        self.inputs = Inputs(profile, self.state, self.stats, self.decoders, self.clockmap, self.fixes, self.reporter,
+                             clock)
+        self.outputs = Outputs(profile, self.state, self.stats, self.clockmap, self.fixes, self.reporter, wall_clock,
+                               lambda: self.origins.gnss.summary(), self.summary)
+        self.origins = OriginHandler(profile, self.state, self.decoders, self.fixes, self.reporter, clock,
+                                     self.outputs.stage.writes_gps)
+        self.dispatch = self._dispatch_table(self.autopilot.handlers(), self.inputs.handlers(), self.origins.handlers())
         self.link: Link | None = None
+        self.exit_code: int | None = None
+        self._thread: threading.Thread | None = None
+
+    @staticmethod
+    def _dispatch_table(*tables: dict[str, Handler]) -> dict[str, Handler]:
+        """One handler per message type: the handlers' tables merged (a type claimed twice is a bug)."""
+        out: dict[str, Handler] = {}
+        for table in tables:
+            twice = set(out) & set(table)
+            if twice:
+                raise AssertionError(f"message types with two handlers: {sorted(twice)}")
+            out.update(table)
+        return out
+
+    def _wants_pose(self) -> bool:
+        """The fix pipeline needs the simulator's true pose: a world camera, or the emulator matcher."""
+        camera = self.fixes.camera
+        return (camera is not None and camera.needs_pose) or self.profile.matcher == "emulator"
+
+    # ------------------------------------------------------------------ what tests and tools read
+    @property
+    def loc(self) -> Localiser | None:
+        return self.state.loc
+
+    @property
+    def origin(self) -> encoders.Origin | None:
+        return self.state.origin
+
+    @property
+    def anchor(self) -> Anchor:
+        return self.state.anchor
+
+    @property
+    def gnss(self) -> Any:
+        return self.origins.gnss
+
+    @property
+    def params_check(self) -> Any:
+        return self.autopilot.params_check
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -118,8 +156,9 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
         if self._thread is not None:
             self._thread.join(timeout)
 
-    def _setup(self) -> None:
-        """Open logs, the link, the fix pipeline and the camera motion; request streams; start the timers."""
+    def _open(self) -> None:
+        """Open logs, the link, the fix pipeline and the camera motion; hand the link to the handlers and start
+        their schedules."""
         p, opt = self.profile, self.opt
         log_dir = Path(opt.log_dir) if opt.log_dir else None
         if log_dir is not None:
@@ -127,12 +166,13 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             import yaml
 
             (log_dir / "config.yaml").write_text(yaml.safe_dump(profile_to_dict(p), sort_keys=False))
-        self.events = EventLog(log_dir / "events.jsonl" if log_dir else None)
-        self.fixes.open(self.events)
+        events = EventLog(log_dir / "events.jsonl" if log_dir else None)
+        self.fixes.open(events)
         self.link = Link(opt.connect, p.link.sysid, p.link.compid, p.link.baud,
                          tlog=log_dir / "mav.tlog" if log_dir else None, wall_clock=self.wall_clock,
                          signing_key=opt.signing_key, rejected=self.decoders.rejected,
                          udp_client_timeout_s=opt.link_timeout_s)
+        self.reporter.open(events, self.link)
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
         if self.fixes.camera is not None and p.plus.camera_speed and p.estimator is Estimator.TACO_PLUS:
@@ -143,46 +183,20 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
                 log.warning("camera speed off (plus.camera_speed): %s", e)
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
-        self.requester: StreamRequester | None = None  # made when the autopilot is adopted (`_request_streams`)
-        self.params_check = ParamCheck(self.link.send, self.link.mav, p.output.gps_id,
-                                       antenna_frd_m=p.output.antenna_frd_m) if p.link.check_params and \
-            "gps_input" in p.output.messages else None
-        self.gnss = GnssTracker(p.output.gps_id, self.output.writes_gps, p.output.hdop_uere_m,
-                                self.params_check.types if self.params_check is not None else None)
-        self.origin_chooser = OriginChooser()
-        self.origin_request = MessageRequest(self.link.send, self.link.mav, ORIGIN_MESSAGES)
-        if opt.origin is not None:
-            self._offer_origin(OriginCandidate(*opt.origin, speed=0.0, course=None, source="--origin"))
         now = self.clock()
-        self.t_heartbeat = Periodic(p.link.heartbeat_hz, now)
-        self.t_output = AutopilotPeriodic(p.output.rate_hz, now, self.clockmap.speed)  # rate in autopilot time
-        self.t_timesync = Periodic(p.link.timesync_hz, now) if p.link.timesync_hz > 0 else None
-        self.t_stats = Periodic(0.1, now + 10.0)
-        self.gcs = GcsHealth()
-        self.t_gcs = AutopilotPeriodic(GCS_HEALTH_HZ, now, self.clockmap.speed)  # NAMED_VALUE_FLOAT health
-
-    def _request_streams(self, autopilot: int) -> None:
-        """Ask the adopted autopilot (HEARTBEAT.autopilot: MAV_AUTOPILOT_*) for the input streams; a simulator's
-        true pose (world camera, emulator matcher) is SIMSTATE on ArduPilot SITL and HIL_STATE_QUATERNION on PX4
-        SIH (neither is sent unless asked for)."""
-        p = self.profile
-        if not p.link.request_rates:
-            return
-        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
-        if (self.fixes.camera is not None and self.fixes.camera.needs_pose) or p.matcher == "emulator":
-            rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
-        rates[self.imu_kind or "RAW_IMU"] = p.link.imu_rate_hz
-        rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
-        assert self.link is not None
-        self.requester = StreamRequester(self.link.send, self.link.mav, rates)
+        self.autopilot.open(self.link, now)
+        checked = self.autopilot.params_check
+        self.origins.open(self.link, checked.types if checked is not None else None, opt.origin)
+        self.outputs.open(self.link, now)
 
     def run(self) -> int:
         """The loop; returns 0 after a clean stop (logs flushed, threads stopped)."""
         try:
-            self._setup()
-            self.events.write("start", connect=self.opt.connect, camera=self.opt.camera, matcher=self.profile.matcher,
-                              outputs=list(self.profile.output.messages), rate_hz=self.profile.output.rate_hz)
-            self._status(SEV_INFO, "started", key=None)
+            self._open()
+            self.reporter.event("start", connect=self.opt.connect, camera=self.opt.camera,
+                                matcher=self.profile.matcher, outputs=list(self.profile.output.messages),
+                                rate_hz=self.profile.output.rate_hz)
+            self.reporter.status(SEV_INFO, "started")
             while not self.stop_event.is_set():
                 self._step()
             self.exit_code = 0
@@ -193,13 +207,12 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
     def _shutdown(self) -> None:
         """Stop threads, write the stop event with the summary, close the link and logs."""
         if self.link is not None and self.link.target_system:
-            self._status(SEV_NOTICE, "stopping", key=None)
+            self.reporter.status(SEV_NOTICE, "stopping")
         if self.motion is not None:
             self.motion.stop()
         self.fixes.stop()
-        if getattr(self, "events", None) is not None:
-            self.events.write("stop", stats=self.summary())
-            self.events.close()
+        self.reporter.event("stop", stats=self.summary())
+        self.reporter.events.close()
         if self.link is not None:
             self.link.close()
         self.fixes.close()
@@ -209,8 +222,7 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
     def _step(self) -> None:
         """One loop pass: receive (at most until the next output or heartbeat is due), handle, collect fixes."""
         now = self.clock()
-        due = [self.t_output.next_due, self.t_heartbeat.next_due]
-        timeout = min(0.02, max(0.0, min(due) - now))
+        timeout = min(0.02, max(0.0, min(self.outputs.next_due, self.autopilot.next_due) - now))
         assert self.link is not None
         msgs = self.link.recv(timeout)
         received = time.perf_counter()
@@ -220,34 +232,75 @@ class Daemon(DaemonInputs, DaemonOrigin, DaemonOutputs):
             except Exception:  # noqa: BLE001 - one bad message must never stop the loop
                 log.exception("handling %s", msg.get_type())
                 self.stats.dropped["handler_error"] += 1
-        self.fixes.drain(self.loc, self.anchor.generation)
-        self.fixes.poll(self.loc, self.anchor.generation)
+        loc, generation = self.state.loc, self.state.anchor.generation
+        self.fixes.drain(loc, generation)
+        self.fixes.poll(loc, generation)
         if self.motion is not None:
-            self.motion.tick(self.loc)
+            self.motion.tick(self.state.loc)
         self._periodic(self.clock())
 
-    def _periodic(self, now: float) -> None:
-        """Whatever is due at companion time `now` (s): outputs, heartbeat, time sync, requests, origin, health."""
+    def _handle(self, msg: Any, received: float) -> None:
+        """One decoded message: a HEARTBEAT may adopt the autopilot; anything else goes to its handler only when
+        it comes from the adopted autopilot. received: perf_counter seconds at receipt (IMU-to-estimate latency)."""
+        kind = msg.get_type()
         link = self.link
         assert link is not None
-        if self.t_output.due(now):
-            self._send_outputs(now)
-        if self.t_heartbeat.due(now):
-            link.heartbeat()
-        if self.t_timesync is not None and link.target_system and self.t_timesync.due(now):
-            link.send(link.mav.timesync_encode(0, self.clockmap.request_ns()))
-        if self.requester is not None:
-            self.requester.tick(now, link.target_system, link.target_component)
-        if self.params_check is not None:
-            self.params_check.tick(now, link.target_system, link.target_component)
-        self._origin_tick(now)
-        if self.t_gcs.due(now) and link.target_system:  # on its grid from the start, sent once there is a target
-            self._gcs_health(now)
-        if self.t_stats.due(now):
-            self.events.write("stats", **self.summary())
-        if self.linkwatch.check(now):
-            log.warning("link lost: nothing from the autopilot for %.1f s", self.opt.link_timeout_s)
-            self.events.write("link_lost", silent_s=now - (self.linkwatch.last_heard or now))
+        if kind == "HEARTBEAT":
+            if self.autopilot.on_heartbeat(msg):
+                self.autopilot.heard(self.clock())
+                self.inputs.on_heartbeat(msg)
+            return
+        if not link.target_system:
+            self.decoders.reject(kind, "before_autopilot")
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != (link.target_system, link.target_component):
+            self.decoders.reject(kind, "foreign_source")  # only the adopted autopilot's messages are acted on
+            return
+        self.autopilot.heard(self.clock())
+        handler = self.dispatch.get(kind)
+        if handler is not None:
+            handler(msg, received)
+
+    def _periodic(self, now: float) -> None:
+        """Whatever is due at companion time `now` (s): outputs, our heartbeat and requests, the origin, the
+        ground station's health, link liveness."""
+        self.outputs.tick(now)
+        self.autopilot.tick(now)
+        self.origins.tick(now)
+        self.outputs.tick_reports(now)
+        self.autopilot.watch(now)
+
+    # ------------------------------------------------------------------ counters
+    def summary(self) -> dict[str, Any]:
+        """Counters for logs and tests; output_slots_skipped: output periods missed because the loop ran late
+        (a stalled machine; each one is a GPS_INPUT the autopilot did not get)."""
+        lat = np.array(self.stats.imu_to_estimate_s) * 1e3
+        watch = self.autopilot.linkwatch
+        return {"imu_samples": self.stats.imu_samples, "queries": self.stats.queries, "fixes": dict(self.stats.fixes),
+                "dropped": dict(self.stats.dropped), "rejected_inputs": dict(self.decoders.rejected),
+                "outputs": len(self.stats.output_times), "output_slots_skipped": self.outputs.t_output.skipped,
+                "reboots": self.stats.reboots, "imu_gaps": self.stats.imu_gaps,
+                "sources": self.inputs.sources.summary(), "attitude_stale": self.stats.attitude_stale,
+                "link_outages": watch.outages, "link_lost": watch.lost,
+                "crops_off_map": self.fixes.service.stats.crops_off_map if self.fixes.service else 0,
+                "mode": self.outputs.gcs.mode.name,
+                "camera_motion": dict(self.motion.counts) if self.motion is not None else None,
+                "stuck_matchers": self.fixes.stuck,
+                "imu_to_estimate_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+                "clock_source": self.clockmap.source, "clock_speed": self.clockmap.speed(),
+                "healthy": self.outputs.stage.health.healthy,
+                "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
+                "estimator": self._estimator_state()}
+
+    def _estimator_state(self) -> dict[str, Any] | None:
+        """The estimate's 1-sigma (m) and the mode's internal state (taco+: lock, speed error m/s, accelerometer
+        bias m/s^2, compass bias rad, fix-noise scale) for the periodic stats line; non-finite values as None."""
+        loc = self.state.loc
+        if loc is None:
+            return None
+        est = loc.estimate()
+        state = {"mode": self.profile.estimator.value, "sigma_h_m": est.sigma_h, **est.extra}
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in state.items()}
 
 
 def run_daemon(profile: Profile, options: DaemonOptions) -> int:

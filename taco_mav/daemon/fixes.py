@@ -38,7 +38,6 @@ from taco_mav.camera.horizon import HorizonCheck
 from taco_mav.camera.sources import CameraSource, ClockDomain, FrameGuard, open_camera
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.localiser_plus import PlusLocaliser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
 from taco_mav.daemon.eventlog import EventLog
@@ -302,12 +301,10 @@ class FixPipeline:
         if loc is None:
             return
         assert self.events is not None
-        if isinstance(loc, PlusLocaliser):
-            for t, kind, detail in loc.take_lock_events():
-                self.events.write("lock", t=t, kind=kind, detail=detail)
-                self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed", "imu_disagrees", "fixes_disagree")
-                            else SEV_INFO,
-                            f"{kind.replace('_', ' ')} {detail}".strip(), None)
+        for t, kind, detail in loc.take_lock_events():
+            self.events.write("lock", t=t, kind=kind, detail=detail)
+            self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed", "imu_disagrees", "fixes_disagree")
+                        else SEV_INFO, f"{kind.replace('_', ' ')} {detail}".strip(), None)
         for res in self._due(loc.t, generation):
             q = res.query
             if res.generation != generation:

@@ -35,6 +35,10 @@ class Periodic:
         self._k = k_now + 1
         return True
 
+    def restart(self, start: float) -> None:
+        """Begin the grid again at `start` (a session that opens later than the schedule was made)."""
+        self.start, self._k = start, 0
+
     def wait(self, now: float) -> float:
         """Seconds until the next slot (0 when due)."""
         return max(0.0, self.next_due - now)
