@@ -326,6 +326,19 @@ class Localiser(GnssFusion):
         return outcome
 
     # ------------------------------------------------------------------ taco+'s inputs (paper mode: none)
+    # Both modes answer the same calls, so the daemon and the evaluator never ask which one they hold.
+    takes_ground_motion = False  # add_ground_motion is used (taco+: a speed measurement)
+
+    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
+        """The camera's ground-plane motion between t0 and t1 (autopilot s; metres in frame 0's body axes) as a
+        speed measurement (taco+); paper mode has no speed state and ignores it."""
+        return "ignored"
+
+    @property
+    def lock_events(self) -> list[tuple[float, str, str]]:
+        """(t, kind, detail) of every lock event (taco+); paper mode keeps no lock."""
+        return []
+
     def set_drive_command(self, t: float, driving: bool) -> None:
         """Whether the autopilot drives at autopilot time t (s): taco+ vetoes its zero-velocity updates while it
         does (`PlusLocaliser`); paper mode has none and ignores it."""

@@ -46,6 +46,8 @@ def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float 
 class PlusLocaliser(CameraSpeedMixin, SafetyGuardMixin, AnswerHoldMixin, GnssPlusMixin, Localiser):
     """taco+ mode. Construct through `make_localiser` (or directly with params.plus set)."""
 
+    takes_ground_motion = True
+
     def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
                  speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> None:
         if params.plus is None:

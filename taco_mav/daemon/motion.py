@@ -18,9 +18,10 @@ import queue
 import threading
 from collections import Counter
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from taco_mav.camera.sources import FrameGuard, FrameRejected
+from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 
 if TYPE_CHECKING:
@@ -78,24 +79,23 @@ class MotionPipeline:
         """The compass heading (ENU rad) at autopilot time t (s), for the heading change between frames."""
         self.headings.add(t, theta)
 
-    def tick(self, loc: Any) -> None:
+    def tick(self, loc: Localiser | None) -> None:
         """On the loop thread: ask for a new measurement when one is due; hand finished ones to the Localiser
         (`add_ground_motion`, taco+ only)."""
         if loc is None:
             return
         self.on_heading(loc.t, float(loc.pre.theta))
-        add = getattr(loc, "add_ground_motion", None)
         while True:
             try:
                 r = self._done.get_nowait()
             except queue.Empty:
                 break
-            if add is not None:
-                used = add(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
+            if loc.takes_ground_motion:
+                used = loc.add_ground_motion(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
                 self.counts[f"used_{used}"] += 1
                 log.debug("camera motion %.2f-%.2f s: fwd %.3f left %.3f m (sigma %.3f, peak %.2f): %s", r.t0, r.t1,
                           r.d_fwd, r.d_left, r.sigma_m, r.response, used)
-        if add is None or loc.t < self._next:
+        if not loc.takes_ground_motion or loc.t < self._next:
             return
         self._next = loc.t + self.interval_s
         t1 = loc.t - self.lag_s

@@ -17,7 +17,7 @@ import numpy as np
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
 from taco_mav.core.frames import FixOutcome
-from taco_mav.core.localiser_plus import PlusLocaliser, make_localiser
+from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery
@@ -120,7 +120,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     pending: list[tuple[float, int, list]] = []
     # taco+'s camera speed, as the daemon feeds it (daemon/motion.py), on a drive with camera frames
     motion = None
-    if profile.matcher in NEEDS_IMAGES and isinstance(loc, PlusLocaliser) and profile.plus.camera_speed \
+    if profile.matcher in NEEDS_IMAGES and loc.takes_ground_motion and profile.plus.camera_speed \
             and len(drive.frame_times) >= 2:
         try:
             motion = OfflineMotion(drive, camera, profile.classical.ego_mask_rows)
@@ -157,6 +157,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         reported_var=np.array(reported) if len(reported) == len(t) else None,
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
-               "lock_events": loc.lock_events if isinstance(loc, PlusLocaliser) else [],
+               "lock_events": loc.lock_events,
                "camera_motion": dict(motion.counts) if motion is not None else {}},
     )
