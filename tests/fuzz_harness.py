@@ -1,4 +1,4 @@
-"""Test tooling, not product code (tests/test_fuzz.py, tests/test_link_imu_source.py, tools/fuzz_mavlink.py).
+"""Test tooling, not product code (tests/test_fuzz.py, tests/test_imu_source.py, tools/fuzz_mavlink.py).
 
 Fuzz the daemon over real UDP: a seeded valid autopilot stream mixed with mutated and random MAVLink frames
 (fuzz_frames.py), everything the daemon sends back parsed and every float field checked.
