@@ -2,7 +2,7 @@
 
 IMU path (no sockets, no threads): a Daemon that is never started is handed RAW_IMU messages (100 Hz) and
 ATTITUDE (50 Hz) of the fusion bench's weaving 10 m/s drive, built with pymavlink, through the very handler its
-loop calls for each IMU message (`_on_imu`: decode, timeline checks, `Localiser.add_imu`); each timed span is
+loop calls for each IMU message (`Inputs.on_imu`: decode, timeline checks, `Localiser.add_imu`); each timed span is
 that call plus `Localiser.estimate()`, i.e. from the IMU sample reaching the daemon's estimator to the estimate
 being available. Keys (60 s of data after the kernels are compiled, every 10th sample closes a filter frame):
 - daemon_imu_to_estimate_p99_ms / _median_ms: the profile's default estimator (paper mode);
