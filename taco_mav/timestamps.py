@@ -1,8 +1,8 @@
 """KITTI-format timestamp files: one `YYYY-MM-DD HH:MM:SS.fffffffff` per line (oxts/, image_02/, frames/).
 
 A leaf module (numpy and the error types only): the dataset readers (`datasets/kitti_io.py`, which re-exports it)
-and the daemon's image-folder camera (`camera/sources.py FolderSource`) share it, so the camera, and with it `daemon/`, needs
-nothing from `datasets/` to read a folder of frames.
+and the daemon's image-folder camera (`camera/sources.py` FolderSource) share it, so the camera, and with it
+`daemon/`, needs nothing from `datasets/` to read a folder of frames.
 """
 
 from __future__ import annotations

@@ -34,7 +34,8 @@ def test_localiser_params_are_the_profile_sections_themselves():
     plus = replace_in(prof, "estimator", Estimator.TACO_PLUS)
     assert localiser_params(plus).plus is plus.plus
     assert LocaliserParams() == localiser_params(Profile())
-    assert LocaliserParams(plus=PlusParams()) == localiser_params(replace_in(Profile(), "estimator", Estimator.TACO_PLUS))
+    default_plus = localiser_params(replace_in(Profile(), "estimator", Estimator.TACO_PLUS))
+    assert LocaliserParams(plus=PlusParams()) == default_plus
 
 
 def test_shipped_profiles_load(tmp_path):

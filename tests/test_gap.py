@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from gap import FrameGap, MapGap, alter_mosaic, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
+from gap import FrameGap, MapGap, alter_mosaic, occlude_frame  # tools/gap.py (conftest.py puts tools/ on the path)
 
 from taco_mav.bench.classical import textured_mosaic
 from taco_mav.camera.geometry import GroundCamera

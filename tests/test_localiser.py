@@ -96,9 +96,10 @@ def test_yaw_gate_rejects_and_resets_the_time_counter_only():
 
 def test_single_crop_and_no_forward_bias_switches_change_the_query():
     d = simulate(lambda t: 10.0, lambda t: 0.0, 3.0)
-    for params, n_crops, biased in [(LocaliserParams(imu=ImuParams(gyro_arw=0.05)), 5, True),
-                                     (LocaliserParams(imu=ImuParams(gyro_arw=0.05), trigger=TriggerParams(multi_crop=False)), 1, True),
-                                     (LocaliserParams(imu=ImuParams(gyro_arw=0.05), trigger=TriggerParams(forward_bias=False)), 5, False)]:
+    imu = ImuParams(gyro_arw=0.05)
+    for params, n_crops, biased in [(LocaliserParams(imu=imu), 5, True),
+                                     (LocaliserParams(imu=imu, trigger=TriggerParams(multi_crop=False)), 1, True),
+                                     (LocaliserParams(imu=imu, trigger=TriggerParams(forward_bias=False)), 5, False)]:
         loc = Localiser(params, 0.0, speed=10.0)
         q = None
         for s in d.samples:

@@ -54,8 +54,8 @@ class Localiser(GnssFusion):
         self.p = params
         self.frame_dt = 1.0 / params.imu.frame_rate_hz
         self.record = record
-        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.imu.allow_reverse, max_dt_s=params.imu.max_dt_s,
-                                 heading_offset=heading_offset)
+        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.imu.allow_reverse,
+                                 max_dt_s=params.imu.max_dt_s, heading_offset=heading_offset)
         self.highpass = HighPass(params.imu.accel_highpass_hz)
         self._interval_residual = MomentAccumulator()
         s_xy, s_th = params.ukf.initial_sigma_xy_m, params.ukf.initial_sigma_theta_rad
@@ -69,7 +69,8 @@ class Localiser(GnssFusion):
         self._query_id = 0
         self._ready: FixQuery | None = None
         self._pending: _Pending | None = None
-        self._history: deque[Tick] = deque(maxlen=max(2, int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz)) + 2))
+        frames = int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz))
+        self._history: deque[Tick] = deque(maxlen=max(2, frames + 2))
         self._nodes = 0
         # Offline records (record=True): online track, smoother inputs, outcomes.
         self.track: list[tuple[float, float, float, float, float, float, float]] = []  # t, x, y, th, Pxx, Pxy, Pyy
@@ -122,10 +123,10 @@ class Localiser(GnssFusion):
         inc = tick.inc
         self._window = self._window.extend(inc.dt, inc.distance, tick.residual)
         d_div = math.hypot(self.ukf.x[0] - pre_x, self.ukf.x[1] - pre_y)
-        p = self.p
-        terms = error_terms(self._window, d_div, p.imu.gyro_arw, p.error_model.cross_k, p.error_model.along_k, p.error_model.divergence_k)
+        em = self.p.error_model
+        terms = error_terms(self._window, d_div, self.p.imu.gyro_arw, em.cross_k, em.along_k, em.divergence_k)
         self._predict(tick, terms)
-        self.ukf.update_heading(inc.theta_end, p.ukf.compass_sigma_rad)
+        self.ukf.update_heading(inc.theta_end, self.p.ukf.compass_sigma_rad)
         self._after_heading(tick)
         if tick.fix is not None:
             self.ukf.update_position(*tick.fix)
@@ -137,18 +138,23 @@ class Localiser(GnssFusion):
         if tick.gnss:
             self._gnss_replay(tick)
 
+    def _process_sigmas(self, epsilon: float) -> tuple[float, float]:
+        """The paper's per-frame process noise (sigma_fwd, sigma_lat), metres, for the composite error epsilon (m,
+        Sec. III-F)."""
+        u = self.p.ukf
+        return process_sigmas(epsilon, u.sigma_fwd_min_m, u.sigma_fwd_k, u.sigma_lat_min_m, u.sigma_lat_k)
+
     def _predict(self, tick: Tick, terms: ErrorTerms) -> None:
         """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
-        p, inc = self.p, tick.inc
-        s_f, s_l = process_sigmas(terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
-        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
+        inc = tick.inc
+        s_f, s_l = self._process_sigmas(terms.epsilon)
+        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, self.p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
         self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
 
     def _odometry_sigma(self, tick: Tick) -> float:
         """The smoother's isotropic odometry sigma for this frame, metres: 1/2 (sigma_fwd + sigma_lat) of the
         paper's process noise (Sec. III-G uses the filter's own noise)."""
-        p = self.p
-        s_f, s_l = process_sigmas(tick.terms.epsilon, p.ukf.sigma_fwd_min_m, p.ukf.sigma_fwd_k, p.ukf.sigma_lat_min_m, p.ukf.sigma_lat_k)
+        s_f, s_l = self._process_sigmas(tick.terms.epsilon)
         return 0.5 * (s_f + s_l)
 
     def _after_heading(self, tick: Tick) -> None:
@@ -180,12 +186,12 @@ class Localiser(GnssFusion):
     def _plan_search(self) -> tuple[str, float, np.ndarray] | None:
         """The paper's dual trigger and search (Sec. III-D): (reason, forward bias m, body offsets (K, 2) m),
         or None when no fix is due."""
-        eps, p = self._terms.epsilon, self.p
-        reason = trigger_reason(eps, self.t - self._last_fix_t, p.trigger.epsilon_m, p.trigger.time_s)
+        eps, tr = self._terms.epsilon, self.p.trigger
+        reason = trigger_reason(eps, self.t - self._last_fix_t, tr.epsilon_m, tr.time_s)
         if reason is None:
             return None
-        bias = forward_bias(eps, p.trigger.forward_bias_k, p.trigger.forward_bias_cap_m) if p.trigger.forward_bias else 0.0
-        return reason.value, bias, cross_offsets(cross_spacing(eps, p.trigger.cross_k, p.trigger.cross_cap_m), p.trigger.multi_crop)
+        bias = forward_bias(eps, tr.forward_bias_k, tr.forward_bias_cap_m) if tr.forward_bias else 0.0
+        return reason.value, bias, cross_offsets(cross_spacing(eps, tr.cross_k, tr.cross_cap_m), tr.multi_crop)
 
     def poll_query(self) -> FixQuery | None:
         """The query the trigger produced, once (None when there is none). At most one is in flight."""
@@ -232,9 +238,9 @@ class Localiser(GnssFusion):
     def _fix_sigmas(self, w: float, anisotropic: bool | None = None) -> tuple[float, float]:
         """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F); anisotropic:
         None for ukf.anisotropic, False for both the mean of the two."""
-        p = self.p
-        return fix_sigmas(w, p.ukf.fix_fwd_num, p.ukf.fix_fwd_min_m, p.ukf.fix_fwd_max_m, p.ukf.fix_lat_num, p.ukf.fix_lat_min_m,
-                          p.ukf.fix_lat_max_m, p.ukf.anisotropic if anisotropic is None else anisotropic)
+        u = self.p.ukf
+        return fix_sigmas(w, u.fix_fwd_num, u.fix_fwd_min_m, u.fix_fwd_max_m, u.fix_lat_num, u.fix_lat_min_m,
+                          u.fix_lat_max_m, u.anisotropic if anisotropic is None else anisotropic)
 
     def _fuse(self, tick: Tick | None, xy: np.ndarray, s_f: float, s_l: float,
               heading: tuple[float, float] | None = None) -> float:

@@ -37,6 +37,7 @@ from taco_mav.daemon.anchor import Anchor
 from taco_mav.daemon.autopilot import AutopilotLink
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.fixes import FixPipeline
+from taco_mav.daemon.gnss import GnssTracker
 from taco_mav.daemon.inputs import Inputs
 from taco_mav.daemon.motion import MotionPipeline
 from taco_mav.daemon.options import DaemonOptions, DaemonStats
@@ -50,7 +51,7 @@ from taco_mav.mavlink.connection import Link
 from taco_mav.mavlink.decoders import IMU_MESSAGES, Decoders
 from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE
 from taco_mav.mavlink.reconnect import pace_tcp_reconnect
-from taco_mav.mavlink.requests import ekf3_gate_warnings
+from taco_mav.mavlink.requests import ParamCheck, ekf3_gate_warnings
 from taco_mav.mavlink.timesync import ClockMap
 
 log = logging.getLogger(__name__)
@@ -72,7 +73,8 @@ class Daemon:
         if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
             raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
         options = dataclasses.replace(
-            options, link_timeout_s=profile.link.timeout_s if options.link_timeout_s is None else options.link_timeout_s,
+            options,
+            link_timeout_s=profile.link.timeout_s if options.link_timeout_s is None else options.link_timeout_s,
             matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
                                else options.matcher_timeout_s))
         self.profile, self.opt = profile, options
@@ -134,11 +136,11 @@ class Daemon:
         return self.state.anchor
 
     @property
-    def gnss(self) -> Any:
+    def gnss(self) -> GnssTracker:
         return self.origins.gnss
 
     @property
-    def params_check(self) -> Any:
+    def params_check(self) -> ParamCheck | None:
         return self.autopilot.params_check
 
     # ------------------------------------------------------------------ lifecycle
@@ -212,7 +214,7 @@ class Daemon:
             self.motion.stop()
         self.fixes.stop()
         self.reporter.event("stop", stats=self.summary())
-        self.reporter.events.close()
+        self.reporter.close()
         if self.link is not None:
             self.link.close()
         self.fixes.close()

@@ -30,6 +30,10 @@ class Reporter:
     def open(self, events: EventLog, link: Link) -> None:
         self.events, self.link = events, link
 
+    def close(self) -> None:
+        """Flush and close the event log (STATUSTEXTs still go out while the link is open)."""
+        self.events.close()
+
     def event(self, kind: str, **fields: Any) -> None:
         """One line of events.jsonl."""
         self.events.write(kind, **fields)
