@@ -120,6 +120,17 @@ def build_parser() -> argparse.ArgumentParser:
                    "send, ignore unsigned input")
     p.add_argument("--dead-reckoning", action="store_true", help="run without camera and map: IMU dead "
                    "reckoning (and GNSS while it is honest) only, no CVGL fixes")
+    p.add_argument("--shadow", action="store_true", help="run a GNSS-free twin of the estimator beside the fused "
+                   "one and report, while a real receiver is honest, how far from it the twin is (NAMED_VALUE_FLOAT "
+                   "taco_shad, 'shadow' events, a summary line at the end)")
+    p.add_argument("--record", action="store_true", help="keep the camera's frames in the session folder "
+                   "(<log-dir>/<UTC start>/frames: JPEGs + frames.csv with autopilot and companion times); "
+                   "needs --log-dir; replay with --camera folder:SESSION/frames")
+    p.add_argument("--record-rate", type=float, default=5.0, help="frames kept per second (default 5)")
+    p.add_argument("--record-width", type=int, default=0, help="scale recorded frames to this width, px "
+                   "(default 0: as captured)")
+    p.add_argument("--record-budget-mb", type=float, default=2000.0, help="stop recording (with a warning) at "
+                   "this many MB of frames (default 2000)")
     p.set_defaults(func=live.cmd_run)
 
     p = sub.add_parser("sim", parents=[common], help="autopilot simulator: play a drive as an ArduPilot rover over MAVLink")

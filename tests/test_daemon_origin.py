@@ -13,6 +13,7 @@ the real daemon in one process over UDP on 127.0.0.1, the daemon on the simulato
 from __future__ import annotations
 
 import json
+import math
 import random
 import socket
 import threading
@@ -20,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
@@ -42,8 +44,8 @@ def _events(log_dir: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in (log_dir / "events.jsonl").read_text().splitlines()]
 
 
-def _live(world: Path, log_dir: Path, *, gps_id: int = 0, during: Any = None, **sim_kw: Any) -> tuple[
-        dict[str, Any], Daemon, Simulator]:
+def _live(world: Path, log_dir: Path, *, gps_id: int = 0, during: Any = None, shadow: bool = False,
+          **sim_kw: Any) -> tuple[dict[str, Any], Daemon, Simulator]:
     """The full drive, lockstep 5x, taco+ on the synthetic profile with frames rendered at the true pose;
     `during(daemon, port)` runs in a thread while it plays."""
     port = free_udp_port()
@@ -51,7 +53,8 @@ def _live(world: Path, log_dir: Path, *, gps_id: int = 0, during: Any = None, **
                     **sim_kw)
     prof = replace_in(load_profile("synthetic"), "output.gps_id", gps_id)
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=log_dir,
-                                        estimator=Estimator.TACO_PLUS), clock=sim.clock, wall_clock=sim.utc_now)
+                                        estimator=Estimator.TACO_PLUS, shadow=shadow), clock=sim.clock,
+                    wall_clock=sim.utc_now)
     daemon.start()
     extra = threading.Thread(target=during, args=(daemon, port), daemon=True) if during else None
     try:
@@ -237,3 +240,75 @@ def test_spoofing_reported(world: Path, tmp_path: Path) -> None:
     assert len(warn) == 1 and daemon.gnss.summary()["rejecting"]
     _assert_rate(seq)
     assert seq["max_error_m"] <= 5.0 and seq["denied_from_s"] == 30.0
+
+
+def test_restart_mid_drive_starts_where_the_autopilot_is(world: Path, tmp_path: Path) -> None:
+    """A daemon stopped mid-drive and started again with the same command (no --origin, no GNSS, the EKF origin
+    set): the new one starts where the autopilot's own position (GLOBAL_POSITION_INT) puts the vehicle, moving,
+    with a 1-sigma of at least 3 m, never at the origin (issue 30: it started at the origin, at rest, and
+    reported TRACKING 45 m from the rover); no report of either run is more than 5 m from the truth."""
+    port = free_udp_port()
+    sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=5.0, lockstep=True, wait_companion_s=10.0, drain_s=0.3,
+                    deny_after_s=0.0)
+    prof = load_profile("synthetic")
+
+    def daemon(log_dir: Path) -> Daemon:
+        return Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=log_dir,
+                                          estimator=Estimator.TACO_PLUS), clock=sim.clock, wall_clock=sim.utc_now)
+
+    first = daemon(tmp_path / "first")
+    first.start()
+    try:
+        sim.start()
+        deadline = time.monotonic() + 60.0
+        while (sim.play_start is None or sim.clock.now() - sim.play_start < 20.0) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        first.stop()
+        first.join(5.0)
+    second = daemon(tmp_path / "second")
+    second.start()
+    try:
+        assert sim.join(timeout=120.0), "simulator did not finish"
+    finally:
+        second.stop()
+        second.join(5.0)
+    seq = sim.results()["sequences"][sim.drive.name]
+    starts = [e for e in _events(tmp_path / "second") if e["event"] == "start_from_autopilot"]
+    assert len(starts) == 1 and starts[0]["sigma_h_m"] >= 3.0 and starts[0]["speed"] > 1.0
+    assert math.hypot(starts[0]["x"], starts[0]["y"]) > 50.0  # far from the origin, where it would have started
+    assert not [e for e in _events(tmp_path / "first") if e["event"] == "start_from_autopilot"]  # a fresh start
+    assert second.summary()["dropped"].get("imu_before_start", 0) <= 10  # it waited at most for one answer
+    assert seq["max_error_m"] <= 5.0 and seq["ate_m"] <= 1.5
+
+
+def test_shadow_twin_measures_its_error_while_gnss_is_honest(world: Path, tmp_path: Path) -> None:
+    """--shadow with GPS2 honest for 40 s (5 cm noise: the distance to the receiver is then the twin's own
+    error; with a 0.5 m receiver it is the two combined), then gone: `shadow` events at 1 Hz of autopilot time
+    only while it is honest, whose gnss_err_m (the twin against the receiver) tells the twin's true error
+    (against the simulator's truth) to within 0.3 m in the median; the twin takes the same camera fixes; the
+    fused output, which the twin never touches, keeps the no-shadow run's accuracy after the receiver goes."""
+    seq, daemon, sim = _live(world, tmp_path, deny_after_s=40.0, gnss_noise_m=0.05, seed=3, shadow=True)
+    shadows = [e for e in _events(tmp_path) if e["event"] == "shadow"]
+    t_rel = np.array([e["t"] for e in shadows]) - sim.play_start
+    assert 30 <= len(shadows) <= 42 and t_rel.max() <= 41.5
+    assert np.all(np.diff(t_rel) >= 0.95)  # 1 Hz of autopilot time
+    d = sim.drive
+    lat = np.interp(t_rel, d.t, d.true_lat)  # sample i plays at play_start + t[i]
+    lon = np.interp(t_rel, d.t, d.true_lon)
+    true_err = np.array([_metres(a, b, e["lat"], e["lon"]) for a, b, e in zip(lat, lon, shadows)])
+    told = np.array([e["gnss_err_m"] for e in shadows])
+    assert abs(float(np.median(told)) - float(np.median(true_err))) <= 0.3, (np.median(told), np.median(true_err))
+    assert float(np.median(true_err)) > 0.0 and all(e["h_acc_m"] > 0 for e in shadows)
+    s = daemon.summary()
+    assert s["shadow"]["reports"] == len(shadows)
+    assert s["fixes"].get("shadow_accepted", 0) >= 0.8 * s["fixes"].get("accepted", 0) > 0
+    _assert_rate(seq)
+    assert seq["ate_denied_m"] <= 1.0
+
+
+def _metres(lat0: float, lon0: float, lat1: float, lon1: float) -> float:
+    """Flat-earth distance between two nearby points, m."""
+    n = (lat1 - lat0) * 111_320.0
+    e = (lon1 - lon0) * 111_320.0 * math.cos(math.radians(lat0))
+    return math.hypot(n, e)

@@ -1,12 +1,14 @@
 """Bounded TCP connects and non-blocking reconnects (mavlink/reconnect.py) against real sockets on loopback,
 including a peer that drops SYNs (a listening socket whose backlog is full)."""
 
+import logging
 import socket
 import time
 
 import pytest
 
-from taco_mav.errors import TacoError
+from pymavlink import mavutil
+
 from taco_mav.mavlink.connection import Link
 from taco_mav.mavlink.reconnect import TimedTcp, pace_tcp_reconnect
 
@@ -35,13 +37,56 @@ def test_start_up_connect_to_a_silent_peer_is_bounded():
             s.close()
 
 
-def test_refused_port_is_a_clear_error():
+def test_refused_port_waits_and_connects_once_the_autopilot_listens(caplog: pytest.LogCaptureFixture):
+    """`--connect tcp:` before the autopilot listens: the link opens waiting (one warning), the loop's receive
+    never blocks, and once a peer listens on the port the link connects within the pacing (1 s) and carries
+    MAVLink both ways."""
     s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()  # nothing listens there: connect is refused at once
-    with pytest.raises(TacoError, match=f"tcp:127.0.0.1:{port}.*cannot open"):
-        Link(f"tcp:127.0.0.1:{port}", 1, 191)
+    with caplog.at_level(logging.INFO, logger="taco_mav.mavlink.reconnect"):
+        t0 = time.monotonic()
+        link = Link(f"tcp:127.0.0.1:{port}", 1, 191)
+        assert time.monotonic() - t0 < 0.5 and link.conn.waiting and link.conn.port is None
+        for _ in range(30):  # 1.5 s of loop turns with nothing listening
+            t = time.monotonic()
+            assert link.recv(0.05) == []
+            link.heartbeat()  # dropped while unconnected, never raises
+            assert time.monotonic() - t < 0.2
+        srv = socket.socket()
+        srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        srv.bind(("127.0.0.1", port))
+        srv.listen(1)
+        srv.settimeout(3.0)
+        t_listen = time.monotonic()
+        while link.conn.port is None and time.monotonic() - t_listen < 3.0:
+            link.recv(0.05)
+        peer, _ = srv.accept()
+        connected_after = time.monotonic() - t_listen
+        link.heartbeat()
+        peer.settimeout(2.0)
+        data = peer.recv(1024)
+        ap = mavutil.mavlink.MAVLink(None)
+        ap.robust_parsing = True
+        msgs = ap.parse_buffer(data) or []
+        peer.sendall(mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=1).heartbeat_encode(
+            mavutil.mavlink.MAV_TYPE_GROUND_ROVER, mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0).pack(
+            mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=1)))
+        got = []
+        t1 = time.monotonic()
+        while not got and time.monotonic() - t1 < 2.0:
+            got = link.recv(0.05)
+        link.close()
+        peer.close()
+        srv.close()
+    assert connected_after < 1.5
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT"] and msgs[0].get_srcComponent() == 191
+    assert [m.get_type() for m in got] == ["HEARTBEAT"]
+    waits = [r for r in caplog.records if "no autopilot listening" in r.getMessage()]
+    assert len(waits) == 1 and f"tcp:127.0.0.1:{port}" in waits[0].getMessage()
+    assert any("connected" in r.getMessage() and "reconnected" not in r.getMessage() for r in caplog.records)
 
 
 def test_reconnect_never_blocks_and_resumes_when_the_peer_listens_again():

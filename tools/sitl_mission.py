@@ -65,6 +65,8 @@ class MissionSpec:
     home: tuple[float, float, float, float] = HOME
     extra_params: dict[str, float] = field(default_factory=dict)
     daemon_origin: bool = False  # give the daemon --origin (home) instead of letting it find one
+    restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO and start it again (issue 30)
+    daemon_args: tuple[str, ...] = ()  # more `taco-mav run` options (e.g. --record, --shadow)
 
 
 def free_instance() -> int:
@@ -277,6 +279,7 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
                       str(out / "daemon"), "--estimator", spec.estimator]
         if spec.daemon_origin:
             daemon_cmd.append(f"--origin={spec.home[0]},{spec.home[1]},{spec.home[2]}")
+        daemon_cmd += list(spec.daemon_args)
         shutil.rmtree(out / "daemon", ignore_errors=True)
         daemon = subprocess.Popen(daemon_cmd, stdout=open(out / "daemon.log", "w"), stderr=subprocess.STDOUT,
                                   start_new_session=True)
@@ -298,10 +301,15 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_AUTO)
         auto_t = time.time()
         figures["armed_after_s"] = armed_at - t0
-        gnss_off_t = None
+        gnss_off_t = restart_t = None
         last_seq = n_items - 1
         done = False
         while time.time() - auto_t < spec.timeout_s and not done:
+            if spec.restart_after_s is not None and restart_t is None and time.time() - auto_t >= spec.restart_after_s:
+                stop_group(daemon, signal.SIGTERM)  # as a service manager stops it, then the same command again
+                daemon = subprocess.Popen(daemon_cmd, stdout=open(out / "daemon_restarted.log", "w"),
+                                          stderr=subprocess.STDOUT, start_new_session=True)
+                restart_t = time.time()
             for msg in gcs.pump(0.5):
                 kind = msg.get_type()
                 if kind == "MISSION_ITEM_REACHED" and msg.seq >= last_seq:
@@ -316,6 +324,7 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         figures["mission_completed"] = done
         figures["mission_s"] = time.time() - auto_t
         figures["gnss_off_after_auto_s"] = None if gnss_off_t is None else gnss_off_t - auto_t
+        figures["daemon_restarted_after_auto_s"] = None if restart_t is None else restart_t - auto_t
         return _finish(out, gcs, spec, figures, auto_t)
     finally:
         stop_group(daemon, signal.SIGINT)
@@ -395,6 +404,7 @@ def runaway(gcs: Gcs, spec: Any, truth_kind: str = "SIMSTATE", truth_lon: str = 
 def _finish(out: Path, gcs: Gcs, spec: MissionSpec, figures: dict[str, Any], auto_t: float | None) -> dict[str, Any]:
     figures.update(score(gcs.log, spec, auto_t, out))
     figures.update(sent_score(out / "daemon", spec, auto_t, out))
+    figures.update(shadow_score(out / "daemon", spec))
     gcs.write_tlog(out / "gcs.tlog")
     figures["spec"] = asdict(spec)
     figures["statustext"] = [t for _, _, t in gcs.texts if "taco" in t.lower() or "GPS" in t or "EKF" in t][-40:]
@@ -479,10 +489,16 @@ def sent_score(daemon_dir: Path, spec: Any, auto_t: float | None, out: Path | No
     lat0, lon0 = spec.home[0], spec.home[1]
     truth: list[tuple[float, float, float]] = []
     sent: list[tuple[float, float, float, float]] = []
+    gaps: list[float] = []  # s between consecutive position messages of one session
     for path in tlogs:
         mlog = mavutil.mavlink_connection(str(path))
+        last_sent = None
         while (m := mlog.recv_match(type=[truth_kind, "GPS_INPUT", "HIL_GPS"])) is not None:
             kind, t = m.get_type(), float(m._timestamp)
+            if kind != truth_kind:
+                if last_sent is not None and (auto_t is None or t >= auto_t):
+                    gaps.append(t - last_sent)
+                last_sent = t
             if kind == truth_kind:
                 if m.lat or getattr(m, truth_lon):
                     truth.append((t, *metres_between(lat0, lon0, m.lat * 1e-7, getattr(m, truth_lon) * 1e-7)))
@@ -500,11 +516,40 @@ def sent_score(daemon_dir: Path, spec: Any, auto_t: float | None, out: Path | No
         np.savetxt(out / "ours_sent_error.csv", np.column_stack([S[:, 0], err, S[:, 3]]), fmt="%.3f",
                    delimiter=",", header="wall_s,error_m,h_acc_m")
     return {"ours_sent_reports": int(len(err)), "ours_sent_rms_m": float(np.sqrt(np.mean(err**2))),
+            "ours_sent_interval_p50_ms": float(np.percentile(gaps, 50) * 1e3) if gaps else None,
+            "ours_sent_interval_p99_ms": float(np.percentile(gaps, 99) * 1e3) if gaps else None,
             "ours_sent_error_over_hacc_max": float(ratio.max()),
             "ours_sent_error_over_hacc_median": float(np.median(ratio)),
             # a calibrated 2-D Gaussian puts 86.5 % within 2 sigma (Rayleigh) and 98.9 % within 3
             "ours_sent_within_2_hacc": float(np.mean(ratio <= 2.0)),
             "ours_sent_within_3_hacc": float(np.mean(ratio <= 3.0))}
+
+
+def shadow_score(daemon_dir: Path, spec: Any, truth_kind: str = "SIMSTATE", truth_lon: str = "lng") -> dict[str, Any]:
+    """`--shadow` figures: the `shadow` events' gnss_err_m (the GNSS-free twin's distance to the receiver) beside
+    the twin's true error (its lat, lon against the truth in the daemon's tlog at the event's wall time); none
+    without shadow events."""
+    events = [json.loads(line) for path in sorted(Path(daemon_dir).glob("*/events.jsonl"))
+              for line in path.read_text().splitlines() if '"shadow"' in line]
+    events = [e for e in events if e.get("event") == "shadow"]
+    if not events:
+        return {}
+    lat0, lon0 = spec.home[0], spec.home[1]
+    truth = []
+    for path in sorted(Path(daemon_dir).glob("*/mav.tlog")):
+        mlog = mavutil.mavlink_connection(str(path))
+        while (m := mlog.recv_match(type=[truth_kind])) is not None:
+            if m.lat or getattr(m, truth_lon):
+                east_north = metres_between(lat0, lon0, m.lat * 1e-7, getattr(m, truth_lon) * 1e-7)
+                truth.append((float(m._timestamp), *east_north))
+    T = np.array(sorted(truth))
+    tw = np.array([e["t_wall"] for e in events])
+    twin = np.array([metres_between(lat0, lon0, e["lat"], e["lon"]) for e in events])
+    true_err = np.hypot(twin[:, 0] - np.interp(tw, T[:, 0], T[:, 1]), twin[:, 1] - np.interp(tw, T[:, 0], T[:, 2]))
+    told = np.array([e["gnss_err_m"] for e in events])
+    return {"shadow_reports": len(events), "shadow_gnss_err_median_m": float(np.median(told)),
+            "shadow_true_err_median_m": float(np.median(true_err)),
+            "shadow_true_err_p95_m": float(np.percentile(true_err, 95))}
 
 
 def accuracy_failures(res: dict[str, Any], within_2: float | None = 0.8, within_3: float = 0.95,
@@ -533,13 +578,18 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=300.0)
     ap.add_argument("--profile", help="daemon profile (default ardupilot_rover; handover: ardupilot_rover_gps2)")
     ap.add_argument("--daemon-origin", action="store_true", help="start the daemon with --origin (SITL's home)")
+    ap.add_argument("--daemon-arg", action="append", default=[], help="one more `taco-mav run` option (repeat: "
+                    "--daemon-arg=--record --daemon-arg=--shadow)")
+    ap.add_argument("--restart-after", type=float, help="SIGTERM the daemon this many seconds after AUTO and start "
+                                                          "it again with the same command")
     a = ap.parse_args()
     if not a.ardurover or not Path(a.ardurover).exists():
         print("sitl_mission: error: --ardurover (or $ARDUROVER) must name the SITL binary", file=sys.stderr)
         return 2
     spec = MissionSpec(side_m=a.side, laps=a.laps, wp_speed=a.wp_speed, setup=a.setup,
                        gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
-                       daemon_origin=a.daemon_origin,
+                       daemon_origin=a.daemon_origin, restart_after_s=a.restart_after,
+                       daemon_args=tuple(a.daemon_arg),
                        profile=a.profile or ("ardupilot_rover_gps2" if a.setup == "handover" else "ardupilot_rover"))
     res = run_mission(Path(a.ardurover), Path(a.out), spec)
     print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))

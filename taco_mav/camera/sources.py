@@ -173,7 +173,9 @@ class VideoSource:
 
 class FolderSource:
     """Timestamped images: DIR/timestamps.txt + DIR/data/*.png (KITTI image_02), or a drive folder holding
-    image_02. Frame i is at (stamp_i - stamp_0) + offset_s on the autopilot clock; images load on demand."""
+    image_02: frame i is at (stamp_i - stamp_0) + offset_s on the autopilot clock. Or a recording
+    (`taco-mav run --record`): DIR/frames.csv names each frame with its capture time on the recorded autopilot
+    clock, where it is played (+ offset_s). Images load on demand."""
 
     clock = ClockDomain.AUTOPILOT
     needs_pose = False
@@ -186,6 +188,9 @@ class FolderSource:
         folder = Path(folder)
         if (folder / "image_02").is_dir():
             folder = folder / "image_02"
+        if (folder / "frames.csv").is_file():
+            self.times, self.paths = _recorded_frames(folder / "frames.csv", offset_s)
+            return
         stamps = folder / "timestamps.txt"
         if not stamps.is_file():
             raise ConfigError(f"--camera {folder}: no timestamps.txt (expected a KITTI image_02 folder)")
@@ -215,6 +220,29 @@ class FolderSource:
         if bgr is None:
             raise FrameRejected("corrupt_frame", f"{self.paths[best].name} not readable")
         return self.times[best], cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _recorded_frames(index: Path, offset_s: float) -> tuple[list[float], list[Path]]:
+    """A recording's frames.csv (`daemon.record`): (autopilot times + offset_s, image paths), in time order; a
+    bad line is a DataError naming the file and line."""
+    times, paths = [], []
+    lines = index.read_text().splitlines()
+    if not lines or lines[0].split(",")[:2] != ["index", "t_autopilot_s"]:
+        raise DataError(f"{index}: not a frame index (expected the header 'index,t_autopilot_s,...')")
+    for n, line in enumerate(lines[1:], start=2):
+        cols = line.split(",")
+        try:
+            t, name = float(cols[1]), cols[3]
+        except (IndexError, ValueError):
+            raise DataError(f"{index}:{n}: expected index,t_autopilot_s,t_companion_s,file, got {line!r}") from None
+        if not math.isfinite(t):
+            raise DataError(f"{index}:{n}: t_autopilot_s is {cols[1]}")
+        times.append(t + offset_s)
+        paths.append(index.parent / name)
+    if not times:
+        raise DataError(f"{index}: no frames")
+    order = sorted(range(len(times)), key=times.__getitem__)
+    return [times[i] for i in order], [paths[i] for i in order]
 
 
 class FrameGuard:

@@ -85,6 +85,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         log.warning(hint)
     if args.log_dir:
         checks.output_dir(args.log_dir, "--log-dir", create=False)
+    record = None
+    if args.record:
+        if not args.log_dir or not args.camera:
+            raise UsageError("--record needs --log-dir (the session folder the frames go to) and --camera")
+        checks.number(args.record_rate, "--record-rate", 0.0, 100.0, low_open=True)
+        checks.number(args.record_width, "--record-width", 0, 10_000)
+        checks.number(args.record_budget_mb, "--record-budget-mb", 0.0, low_open=True)
+        from taco_mav.daemon.record import RecordOptions
+
+        record = RecordOptions(rate_hz=args.record_rate, width=args.record_width, budget_mb=args.record_budget_mb)
     from taco_mav.daemon.daemon import DaemonOptions, run_daemon  # the heavy import, after every check
     from taco_mav.datasets.synthetic import register_world_camera
 
@@ -96,7 +106,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         log.info("logging this session to %s", log_dir)
     opts = DaemonOptions(connect=args.connect, camera=args.camera, map_path=Path(args.map) if args.map else None,
                          log_dir=log_dir, origin=origin, estimator=estimator,
-                         matcher_latency_s=args.matcher_latency, signing_key=signing)
+                         matcher_latency_s=args.matcher_latency, signing_key=signing, record=record,
+                         shadow=args.shadow)
     return run_daemon(profile, opts)  # SIGTERM: a clean stop, 0; Ctrl-C: the same stop, 130
 
 

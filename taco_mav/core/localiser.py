@@ -202,6 +202,13 @@ class Localiser(GnssFusion):
                 self.queries.append(q)
         return q
 
+    def adopt_query(self, q: FixQuery) -> None:
+        """Take another Localiser's query as this one's in flight, so that its answer (`add_fix`) updates this
+        filter too: a shadow twin (the daemon's `--shadow`) fed the same camera fixes as the filter it runs beside.
+        The answer is applied to this filter's own state, at the query's capture time."""
+        self._ready = None
+        self._pending = _Pending(q, self.t, self.ukf.x.copy())
+
     def cancel_query(self, query_id: int) -> None:
         """Give up on an in-flight query (matcher failed); the time counter is not reset."""
         if self._pending is not None and self._pending.query.query_id == query_id:

@@ -16,7 +16,7 @@ from taco_mav.core.localiser import Localiser
 from taco_mav.core.localiser_plus import make_localiser
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.types import GnssFix
-from taco_mav.daemon.gnss import moved_from_origin
+from taco_mav.daemon.gnss import START_NEAR_M, moved_from_origin
 from taco_mav.daemon.health import stall_sigma
 from taco_mav.mavlink import encoders
 
@@ -28,6 +28,15 @@ ORIGIN_RANK = {"--origin": 0, "GPS_GLOBAL_ORIGIN": 1, "HOME_POSITION": 2}
 GNSS_RANK = 3  # any real GNSS instance ("GPS_RAW_INT", "GPS2_RAW")
 NO_ORIGIN_TEXTS = ("no origin: set EKF origin/home in the GCS", "or --origin LAT,LON[,ALT] or a GNSS 3D fix")
 MAX_START_CARRY_S = 2.0  # a start fix is carried at its speed and course to the first IMU sample, this far at most
+# With no real GNSS, the first anchoring waits this long (companion s) after the origin is taken for the
+# autopilot's own position (GLOBAL_POSITION_INT, asked for with the origin at 2 Hz; ArduPilot and PX4 answer
+# within 0.5 s), so a daemon restarted mid-mission never starts at the origin.
+START_POSITION_WAIT_S = 1.5
+# 1-sigma of a start taken from the autopilot's position: its EKF's error while we fed it (1.0-1.5 m RMS on
+# ArduPilot Rover SITL, issue 28) plus what it dead-reckoned while no daemon ran (a restart: seconds at up to
+# 3 m/s). A camera fix brings it down within one trigger.
+AUTOPILOT_START_SIGMA_M = 3.0
+MOVING_MPS = 0.5  # an autopilot position at the origin starts there only when the vehicle is slower than this
 
 
 @dataclass(frozen=True)
@@ -131,7 +140,10 @@ class Anchor:
         self.start_xy: tuple[float, float] = (0.0, 0.0)  # ENU m: where the first Localiser starts
         self.start_sigma: float | None = None  # m: its initial 1-sigma (None: the profile's)
         self.start_t: float | None = None  # autopilot s at which the vehicle was at start_xy (None: it rests there)
+        self.start_source: str | None = None  # what placed the start: "gnss", "autopilot" (None: the origin)
         self.generation = 0
+        self._hold_until: float | None = None  # companion s: the first anchoring waits for a start until then
+        self._made: tuple[LocaliserParams, float, tuple[float, float], float, float, float] | None = None
 
     def set_origin(self, lat: float, lon: float, alt: float, speed: float, course: float | None) -> encoders.Origin:
         """The origin (WGS-84 degrees, metres above the ellipsoid) with the start speed and course."""
@@ -150,11 +162,36 @@ class Anchor:
         """A real GNSS fix before the first anchoring, with its speed (m/s) and course (NED rad): the start takes
         them, and the fix's position and accuracy when the vehicle is no longer at the offered origin
         (`gnss.moved_from_origin`). True when the start moved to the fix."""
+        self._hold_until = None
+        self.start_source = "gnss"
         if moved_from_origin(f):
             self.set_start((float(f.xy[0]), float(f.xy[1])), speed, course, f.sigma_h_m, f.t)
             return True
         self.set_start(self.start_xy, speed, course, self.start_sigma)  # still at the origin, within its accuracy
         return False
+
+    def start_from_autopilot(self, xy: tuple[float, float], speed: float, course: float | None, t: float,
+                             sigma: float) -> bool:
+        """The autopilot's own position before the first anchoring: xy ENU m from the origin at autopilot time t
+        (s), speed m/s, course NED rad, 1-sigma m. The start moves there (the daemon restarted beside a vehicle
+        that has moved on) unless the vehicle rests at the origin (within START_NEAR_M, slower than
+        MOVING_MPS), where the origin's start stands. A real GNSS start is never overridden. True when moved."""
+        self._hold_until = None
+        if self.start_source == "gnss":
+            return False
+        if math.hypot(*xy) <= START_NEAR_M and speed < MOVING_MPS:
+            return False
+        self.set_start(xy, speed, course, sigma, t)
+        self.start_source = "autopilot"
+        return True
+
+    def hold_start(self, until: float) -> None:
+        """Let the first anchoring wait until `until` (companion s) for the autopilot's position."""
+        self._hold_until = until
+
+    def holding(self, now: float) -> bool:
+        """True while the first anchoring waits for a start (`hold_start`; `now` companion s)."""
+        return self._hold_until is not None and now < self._hold_until
 
     def _start_at(self, t: float) -> tuple[float, float]:
         """The start position carried from start_t to t (s) at the start speed and course (up to
@@ -184,12 +221,19 @@ class Anchor:
             heading = math.remainder(math.pi / 2 - psi + conv, 2 * math.pi)
         params = self.params if sigma_xy is None else dataclasses.replace(
             self.params, ukf=dataclasses.replace(self.params.ukf, initial_sigma_xy_m=sigma_xy))
-        loc = make_localiser(params, t, xy[0], xy[1], heading, self.start_speed if speed is None else speed,
-                             record=False, heading_offset=conv)
+        self._made = (params, t, (float(xy[0]), float(xy[1])), heading,
+                      self.start_speed if speed is None else speed, conv)
+        loc = self.twin()
         self.generation += 1
         log.info("localiser anchored at t=%.3f s, xy (%.1f, %.1f) m, heading %.1f deg", t, xy[0], xy[1],
                  math.degrees(heading))
         return loc
+
+    def twin(self) -> Localiser:
+        """A Localiser exactly as the last one `localiser` made (shadow mode's GNSS-free twin starts with it)."""
+        assert self._made is not None
+        params, t, xy, heading, speed, conv = self._made
+        return make_localiser(params, t, xy[0], xy[1], heading, speed, record=False, heading_offset=conv)
 
     def restarted(self, loc: Localiser, attitude_yaw: float, t_new: float) -> Localiser:
         """After an autopilot reboot (its clock went back): a Localiser on the new clock at the current estimate,

@@ -90,7 +90,8 @@ class AutopilotLink:
         p = self.profile
         if not p.link.request_rates:
             return
-        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0}
+        rates = {"ATTITUDE": p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0, "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0,
+                 "GLOBAL_POSITION_INT": 2.0}  # the autopilot's own position: where a restarted daemon starts
         if self.wants_pose():
             rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
         rates[self.imu_kind or "RAW_IMU"] = p.link.imu_rate_hz

@@ -43,7 +43,9 @@ from taco_mav.daemon.motion import MotionPipeline
 from taco_mav.daemon.options import DaemonOptions, DaemonStats
 from taco_mav.daemon.origin import OriginHandler
 from taco_mav.daemon.outputs import Outputs
+from taco_mav.daemon.record import FrameRecorder, start_recording
 from taco_mav.daemon.reporter import Reporter
+from taco_mav.daemon.shadow import Shadow
 from taco_mav.daemon.state import LiveState
 from taco_mav.errors import ConfigError
 from taco_mav.mavlink import encoders
@@ -91,8 +93,9 @@ class Daemon:
         self.clockmap = ClockMap(clock)
         self.reporter = Reporter(clock, profile.output.statustext_interval_s)
         self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self.reporter.status, matcher)
-        self.state = LiveState(Anchor(self.params))
+        self.state = LiveState(Anchor(self.params), shadow=Shadow() if options.shadow else None)
         self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed), made when opened
+        self.recorder: FrameRecorder | None = None  # --record: the camera's frames into the session folder
         assert options.link_timeout_s is not None
         self.autopilot = AutopilotLink(profile, self.clockmap, self.reporter, options.link_timeout_s, self._wants_pose)
         self.inputs = Inputs(profile, self.state, self.stats, self.decoders, self.clockmap, self.fixes, self.reporter,
@@ -177,6 +180,9 @@ class Daemon:
         self.reporter.open(events, self.link)
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
+        if opt.record is not None:
+            self.recorder = start_recording(log_dir, self.fixes.camera, self.clockmap, opt.record, self.reporter,
+                                            self.clock)
         if self.fixes.camera is not None and p.plus.camera_speed and p.estimator is Estimator.TACO_PLUS:
             try:
                 self.motion = MotionPipeline(self.fixes)
@@ -212,7 +218,12 @@ class Daemon:
             self.reporter.status(SEV_NOTICE, "stopping")
         if self.motion is not None:
             self.motion.stop()
+        if self.recorder is not None:
+            self.recorder.stop()
         self.fixes.stop()
+        if self.state.shadow is not None:
+            log.info("%s", self.state.shadow.line())
+            self.reporter.status(SEV_INFO, self.state.shadow.line()[:50])
         self.reporter.event("stop", stats=self.summary())
         self.reporter.close()
         if self.link is not None:
@@ -234,11 +245,11 @@ class Daemon:
             except Exception:  # noqa: BLE001 - one bad message must never stop the loop
                 log.exception("handling %s", msg.get_type())
                 self.stats.dropped["handler_error"] += 1
-        loc, generation = self.state.loc, self.state.anchor.generation
-        self.fixes.drain(loc, generation)
-        self.fixes.poll(loc, generation)
+        loc, generation, twin = self.state.loc, self.state.anchor.generation, self.state.twin
+        self.fixes.drain(loc, generation, twin)
+        self.fixes.poll(loc, generation, twin)
         if self.motion is not None:
-            self.motion.tick(self.state.loc)
+            self.motion.tick(self.state.loc, twin)
         self._periodic(self.clock())
 
     def _handle(self, msg: Any, received: float) -> None:
@@ -292,6 +303,8 @@ class Daemon:
                 "clock_source": self.clockmap.source, "clock_speed": self.clockmap.speed(),
                 "healthy": self.outputs.stage.health.healthy,
                 "sent": self.link.sent if self.link else 0, "received": self.link.received if self.link else 0,
+                "recorded": self.recorder.summary() if self.recorder is not None else None,
+                "shadow": self.state.shadow.summary() if self.state.shadow is not None else None,
                 "estimator": self._estimator_state()}
 
     def _estimator_state(self) -> dict[str, Any] | None:

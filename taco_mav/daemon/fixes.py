@@ -41,6 +41,7 @@ from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
 from taco_mav.daemon.eventlog import EventLog
+from taco_mav.daemon.shadow import twin_fix
 from taco_mav.daemon.worker import FetchFn, MatchWorker, WorkResult
 from taco_mav.errors import ConfigError
 from taco_mav.mavlink import encoders
@@ -193,9 +194,10 @@ class FixPipeline:
         return best[1], best[2], best[3]
 
     # ------------------------------------------------------------------ queries and fixes
-    def poll(self, loc: Localiser | None, generation: int) -> None:
+    def poll(self, loc: Localiser | None, generation: int, twin: Localiser | None = None) -> None:
         """Hand the Localiser's pending query (if any) to the worker, or cancel it when it cannot be answered.
-        generation: the Localiser's generation, carried back with the result."""
+        generation: the Localiser's generation, carried back with the result; twin: shadow mode's GNSS-free
+        twin, which takes the same query (`adopt_query`) and so the same answer."""
         for w in self.guard.take_warnings() if self.guard is not None else []:
             assert self.events is not None
             self.events.write("camera_pitch", **dataclasses.asdict(w))
@@ -216,6 +218,8 @@ class FixPipeline:
         if not self.worker.submit(q, fetch, generation):
             loc.cancel_query(q.query_id)
             self.stats.fixes["worker_busy"] += 1
+        elif twin is not None:
+            twin.adopt_query(q)
 
     def _watchdog(self, loc: Localiser) -> None:
         """Cancel a query the matcher has been on for longer than matcher_timeout_s (wall), abandon that
@@ -295,9 +299,9 @@ class FixPipeline:
             due.append(self._held.popleft())
         return due
 
-    def drain(self, loc: Localiser | None, generation: int) -> None:
-        """Apply every finished worker result to the Localiser (results of an older generation are dropped),
-        log each as a "fix" event and report the gate decision by STATUSTEXT."""
+    def drain(self, loc: Localiser | None, generation: int, twin: Localiser | None = None) -> None:
+        """Apply every finished worker result to the Localiser and the shadow twin (results of an older
+        generation are dropped), log each as a "fix" event and report the gate decision by STATUSTEXT."""
         if loc is None:
             return
         assert self.events is not None
@@ -312,6 +316,8 @@ class FixPipeline:
                 continue
             if res.results is None:
                 loc.cancel_query(q.query_id)
+                if twin is not None:
+                    twin.cancel_query(q.query_id)
                 self.stats.fixes[res.error or "error"] += 1
                 self.events.write("fix", query_id=q.query_id, capture_t=q.capture_t, error=res.error,
                                   detail=res.detail)
@@ -325,6 +331,8 @@ class FixPipeline:
                 self.stats.fixes["fix_error"] += 1
                 continue
             self.stats.fixes[out.reason] += 1
+            if twin is not None:
+                self.stats.fixes[f"shadow_{twin_fix(twin, q.query_id, res.results)}"] += 1
             self.last_weight = max(out.weights, default=0.0)  # the ground station's taco_w (gcs.py)
             est = loc.estimate()
             self.events.write(

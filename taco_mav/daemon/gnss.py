@@ -132,6 +132,11 @@ class GnssTracker:
         return self.role(instance) == "real"
 
     @property
+    def rejecting(self) -> bool:
+        """The Localiser is refusing the receiver's fixes (spoofed or glitching?)."""
+        return self._rejecting
+
+    @property
     def steady(self) -> bool:
         """The instance in use has given STEADY_FIXES consecutive, mutually consistent 3D fixes."""
         return len(self._steady) >= STEADY_FIXES

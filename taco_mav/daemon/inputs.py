@@ -84,8 +84,15 @@ class Inputs:
             if st.origin is None:
                 self.stats.dropped["imu_before_origin"] += 1
                 return
+            if st.anchor.holding(self.clock()):  # waiting for the autopilot's position (a restart)
+                self.stats.dropped["imu_before_start"] += 1
+                return
             st.loc = st.anchor.localiser(r.t, a.yaw)
-        st.loc.add_imu(ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw))
+            self._anchored()
+        sample = ImuSample(r.t, r.accel_frd, r.gyro_frd, a.roll, a.pitch, a.yaw)
+        st.loc.add_imu(sample)
+        if st.twin is not None:
+            st.twin.add_imu(sample)
         self.stats.imu_samples += 1
         self.stats.imu_to_estimate_s.append(time.perf_counter() - received)
 
@@ -105,6 +112,8 @@ class Inputs:
         loc, last = self.state.loc, self.state.last_imu
         if loc is not None and last is not None and driving is not None:
             loc.set_drive_command(last.t, driving)
+            if self.state.twin is not None:
+                self.state.twin.set_drive_command(last.t, driving)
 
     def on_sim_pose(self, msg: Any, received: float) -> None:
         """A simulator's true pose (SIMSTATE, HIL_STATE_QUATERNION): to the fix pipeline (world camera, emulator
@@ -127,6 +136,7 @@ class Inputs:
         self.fixes.clear_truth()
         if st.loc is not None and st.attitude is not None:
             st.loc = st.anchor.restarted(st.loc, st.attitude.yaw, t_new)
+            self._anchored()
         st.last_imu = None
 
     def _imu_gap(self, t_last: float, t_new: float) -> None:
@@ -140,6 +150,12 @@ class Inputs:
         log.warning("IMU gap %.1f s: re-anchored %.1f m ahead, sigma %.1f m", t_new - t_last, abs(c.carried_m), c.sigma)
         self.reporter.event("imu_gap", t_last=t_last, t_new=t_new, sigma_h=c.sigma, carried_m=c.carried_m)
         st.loc = st.anchor.localiser(t_new, st.attitude.yaw, c.xy, c.heading, c.speed, c.sigma)
+        self._anchored()
+
+    def _anchored(self) -> None:
+        """A new Localiser: the shadow twin (--shadow) starts beside it, from the same state."""
+        if self.state.shadow is not None:
+            self.state.shadow.anchored(self.state.anchor.twin())
 
     def _source_switches(self) -> None:
         """Log, count (summary "sources") and write the IMU / attitude source chosen or changed; a fallback

@@ -79,9 +79,9 @@ class MotionPipeline:
         """The compass heading (ENU rad) at autopilot time t (s), for the heading change between frames."""
         self.headings.add(t, theta)
 
-    def tick(self, loc: Localiser | None) -> None:
+    def tick(self, loc: Localiser | None, twin: Localiser | None = None) -> None:
         """On the loop thread: ask for a new measurement when one is due; hand finished ones to the Localiser
-        (`add_ground_motion`, taco+ only)."""
+        and the shadow twin (`add_ground_motion`, taco+ only)."""
         if loc is None:
             return
         self.on_heading(loc.t, float(loc.pre.theta))
@@ -92,6 +92,8 @@ class MotionPipeline:
                 break
             if loc.takes_ground_motion:
                 used = loc.add_ground_motion(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
+                if twin is not None and twin.takes_ground_motion:
+                    twin.add_ground_motion(r.t0, r.t1, r.d_fwd, r.d_left, r.sigma_m)
                 self.counts[f"used_{used}"] += 1
                 log.debug("camera motion %.2f-%.2f s: fwd %.3f left %.3f m (sigma %.3f, peak %.2f): %s", r.t0, r.t1,
                           r.d_fwd, r.d_left, r.sigma_m, r.response, used)

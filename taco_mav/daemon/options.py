@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from taco_mav.config import Estimator
+from taco_mav.daemon.record import RecordOptions
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,8 @@ class DaemonOptions:
     link_timeout_s: float | None = None  # None: the profile's link.timeout_s
     matcher_timeout_s: float | None = None  # None: the profile's map.matcher_timeout_s
     signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
+    record: RecordOptions | None = None  # keep the camera's frames in log_dir/frames (needs log_dir and a camera)
+    shadow: bool = False  # run a GNSS-free twin beside the fused filter and report its distance to the receiver
 
 
 @dataclass

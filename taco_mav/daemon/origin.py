@@ -1,21 +1,28 @@
 """The daemon's handler of where the vehicle is in the world: the origin (--origin, the EKF origin, home, a
 steady real GNSS; `OriginChooser` decides which and when), asking the autopilot for one while there is none,
-and real GNSS readings (GPS_RAW_INT, GPS2_RAW), which give the start speed and course and are then fused by
-the Localiser while they are honest (`GnssTracker`, the guard in the core)."""
+real GNSS readings (GPS_RAW_INT, GPS2_RAW), which give the start speed and course and are then fused by the
+Localiser while they are honest (`GnssTracker`, the guard in the core), and the autopilot's own position
+(GLOBAL_POSITION_INT): with no real GNSS, a daemon started beside a vehicle that already has one (a restart
+mid-mission) starts there, with an honest 1-sigma, never at the origin (issue 30)."""
 
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any, Callable
 
 from taco_mav.config import Profile
-from taco_mav.daemon.anchor import GNSS_RANK, NO_ORIGIN_TEXTS, OriginCandidate, OriginChooser
+from taco_mav.daemon.anchor import (AUTOPILOT_START_SIGMA_M, GNSS_RANK, NO_ORIGIN_TEXTS, START_POSITION_WAIT_S,
+                                    OriginCandidate, OriginChooser)
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gnss import GnssEvent, GnssTracker
 from taco_mav.daemon.reporter import Reporter
+from taco_mav.daemon.shadow import SHADOW_NAME
 from taco_mav.daemon.state import LiveState
+from taco_mav.mavlink import encoders
 from taco_mav.mavlink.connection import Link
-from taco_mav.mavlink.decoders import GNSS_MESSAGES, ORIGIN_MESSAGES, Decoders, GnssReading
+from taco_mav.mavlink.decoders import (GNSS_MESSAGES, MAX_H_ACC_M, ORIGIN_MESSAGES, POSITION_MESSAGE,
+                                       AutopilotPosition, Decoders, GnssReading)
 from taco_mav.mavlink.mavconst import SEV_INFO, SEV_WARNING
 from taco_mav.mavlink.requests import MessageRequest
 
@@ -37,10 +44,14 @@ class OriginHandler:
         self.gnss = GnssTracker(profile.output.gps_id, writes_gps, profile.output.hdop_uere_m)
         self.link: Link | None = None
         self.request: MessageRequest | None = None  # GPS_GLOBAL_ORIGIN / HOME_POSITION while there is no origin
+        self.position: AutopilotPosition | None = None  # the autopilot's latest own position
+        self.position_at = -math.inf  # companion s it came
+        self.echo_h_acc: float | None = None  # m: the 1-sigma our GPS instance last showed (our previous run's)
 
     def handlers(self) -> dict[str, Callable[[Any, float], None]]:
         out: dict[str, Callable[[Any, float], None]] = {k: self.on_gnss for k in GNSS_MESSAGES}
         out.update({k: self.on_origin_message for k in ORIGIN_MESSAGES})
+        out[POSITION_MESSAGE] = self.on_position
         return out
 
     def open(self, link: Link, gps_types: dict[int, int] | None,
@@ -78,10 +89,42 @@ class OriginHandler:
                             course_ned=c.course, epsg=origin.projector.epsg, convergence_rad=origin.convergence)
         self.reporter.status(SEV_INFO, f"origin {c.lat:.6f},{c.lon:.6f} ({c.source})")
         self.fixes.on_origin(origin)
+        now = self.clock()
         if c.rank == GNSS_RANK:
             self.state.anchor.set_start((0.0, 0.0), c.speed, c.course, None, c.t)  # carried to the first IMU sample
-        elif (fresh := self.gnss.fresh(self.clock())) is not None:
+            self.state.anchor.start_source = "gnss"
+        elif (fresh := self.gnss.fresh(now)) is not None:
             self._start_from_gnss(fresh)
+        elif self.position is not None and now - self.position_at <= START_POSITION_WAIT_S:
+            self._start_from_autopilot(self.position)
+        else:
+            self.state.anchor.hold_start(now + START_POSITION_WAIT_S)
+
+    def on_position(self, msg: Any, received: float) -> None:
+        """GLOBAL_POSITION_INT: the autopilot's own position; before the first anchoring it is the start when no
+        real GNSS gives one (`Anchor.start_from_autopilot`)."""
+        p = self.decoders.autopilot_position(msg)
+        if p is None:
+            return
+        self.position, self.position_at = p, self.clock()
+        if self.state.origin is not None and self.state.loc is None:
+            self._start_from_autopilot(p)
+
+    def _start_from_autopilot(self, p: AutopilotPosition) -> None:
+        """Start where the autopilot says the vehicle is, 1-sigma the larger of AUTOPILOT_START_SIGMA_M and the
+        accuracy our GPS instance last showed (what the previous run reported)."""
+        origin = self.state.origin
+        assert origin is not None
+        e, n = origin.projector.to_utm(p.lat, p.lon)
+        xy = (float(e) - float(origin.utm[0]), float(n) - float(origin.utm[1]))
+        sigma = max(AUTOPILOT_START_SIGMA_M, self.echo_h_acc or 0.0)
+        if self.state.anchor.start_from_autopilot(xy, p.speed, p.course_ned, p.t, sigma):
+            dist = math.hypot(*xy)
+            log.warning("starting at the autopilot's position, %.1f m from the origin at %.1f m/s, 1-sigma %.1f m",
+                        dist, p.speed, sigma)
+            self.reporter.event("start_from_autopilot", x=xy[0], y=xy[1], speed=p.speed, course_ned=p.course_ned,
+                                sigma_h_m=sigma, echo_h_acc_m=self.echo_h_acc)
+            self.reporter.status(SEV_WARNING, f"start at autopilot pos {dist:.0f}m from origin, sigma {sigma:.1f}m")
 
     def _start_from_gnss(self, r: GnssReading) -> None:
         """Before the first anchoring: a real fix's speed and course, and its position if the vehicle has moved
@@ -99,7 +142,11 @@ class OriginHandler:
         (`add_gnss`); our own instance's echo is only counted (`GnssTracker`)."""
         st = self.state
         instance, now = GNSS_MESSAGES[msg.get_type()], self.clock()
-        reading = self.decoders.gnss(msg) if self.gnss.is_real(instance) else None
+        real = self.gnss.is_real(instance)
+        reading = self.decoders.gnss(msg) if real else None
+        h_acc_mm = int(getattr(msg, "h_acc", 0))
+        if not real and st.loc is None and int(msg.fix_type) >= 3 and 0 < h_acc_mm <= MAX_H_ACC_M * 1e3:
+            self.echo_h_acc = h_acc_mm * 1e-3  # what our previous run last reported (a restart)
         r, events = self.gnss.on_message(instance, reading, int(msg.fix_type), now, st.origin)
         self._events(events)
         if r is None:
@@ -145,3 +192,20 @@ class OriginHandler:
                 for text in NO_ORIGIN_TEXTS:
                     self.reporter.status(SEV_WARNING, text)
         self._events(self.gnss.tick(now))
+        if st.shadow is not None and st.shadow.due():
+            self._shadow(now)
+
+    def _shadow(self, now: float) -> None:
+        """Shadow mode's 1 Hz report: the GNSS-free twin against an honest receiver's latest fix (`shadow`
+        event, NAMED_VALUE_FLOAT taco_shad); nothing while the receiver is lost or refused."""
+        st, link = self.state, self.link
+        assert st.shadow is not None and link is not None
+        r = self.gnss.fresh(now) if self.gnss.state == "ok" and not self.gnss.rejecting else None
+        fix = None
+        if r is not None and st.origin is not None:
+            fix = self.gnss.fix(r, st.origin, st.last_imu.t if st.last_imu is not None else None)
+        fields = st.shadow.compare(fix, st.origin)
+        if fields is None:
+            return
+        self.reporter.event("shadow", **fields)
+        link.send(encoders.named_value_float(link.mav, int(fields["t"] * 1e3), SHADOW_NAME, fields["gnss_err_m"]))

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 from taco_mav.core.localiser import Localiser
 from taco_mav.daemon.anchor import Anchor
+from taco_mav.daemon.shadow import Shadow
 from taco_mav.mavlink import encoders
 from taco_mav.mavlink.decoders import AttitudeReading, ImuReading
 
@@ -27,6 +28,12 @@ class LiveState:
     attitude: AttitudeReading | None = None
     last_imu: ImuReading | None = None
     last_imu_clock: float = -math.inf
+    shadow: Shadow | None = None  # --shadow: the GNSS-free twin beside loc
+
+    @property
+    def twin(self) -> Localiser | None:
+        """The shadow twin fed what loc is fed except GNSS (None without --shadow or before anchoring)."""
+        return self.shadow.twin if self.shadow is not None else None
 
     @property
     def origin(self) -> encoders.Origin | None:

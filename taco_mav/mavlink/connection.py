@@ -39,6 +39,7 @@ _NETWORK = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
 AUTOPILOT_TYPES_EXCLUDED = (mavutil.mavlink.MAV_AUTOPILOT_INVALID,)
 # pymavlink's BAD_DATA reasons (MAVError texts) -> our reason keys
 _MAX_SKIP = 500
+TCP_LINGER_S = 0.3  # s a TCP link stays open after the last send before it closes (Link.close)
 _BAD_DATA_REASONS = (("Bad prefix", "bad_prefix"), ("invalid MAVLink CRC", "bad_crc"),
                      ("invalid MAVLink message length", "bad_length"), ("invalid incompat_flags", "bad_flags"),
                      ("Invalid signature", "signature"), ("Unable to", "bad_payload"))
@@ -234,7 +235,13 @@ class Link:
         self.send(self.mav.heartbeat_encode(m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0,
                                             m.MAV_STATE_ACTIVE))
 
-    def close(self) -> None:
+    def close(self, linger_s: float = TCP_LINGER_S) -> None:
+        """Close the link (and the tlog). A connected TCP link first stays open `linger_s` seconds after the
+        last send: ArduPilot SITL's TCP port leaves bytes that arrived with the peer's close unprocessed until
+        the next client connects, so a daemon's last GPS_INPUT, applied seconds later by a restarted one's
+        connect, threw EKF3 10 m back to where the rover had been (measured, issue 30)."""
+        if isinstance(self.conn, mavutil.mavtcp) and getattr(self.conn, "port", None) is not None and linger_s > 0:
+            time.sleep(linger_s)
         try:
             self.conn.close()
         except OSError:

@@ -30,6 +30,7 @@ IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_I
 UTM_LAT_MIN, UTM_LAT_MAX = -80.0, 84.0  # degrees: the daemon works on a UTM grid (geo.utm_epsg_for)
 GNSS_MESSAGES = {"GPS_RAW_INT": 1, "GPS2_RAW": 2}  # message -> GPS instance it reports (1 = GPS1), as ArduPilot
 ORIGIN_MESSAGES = ("GPS_GLOBAL_ORIGIN", "HOME_POSITION")
+POSITION_MESSAGE = "GLOBAL_POSITION_INT"  # the autopilot's own estimate (EKF): where a restarted daemon starts
 POSE_MESSAGES = ("SIMSTATE", "HIL_STATE_QUATERNION")  # a simulator's true pose: ArduPilot SITL's, PX4 SIH's
 UNKNOWN_U16 = 65535
 MAX_ALT_M = 20_000.0  # |altitude| beyond this (m AMSL) is not a ground vehicle's
@@ -114,6 +115,23 @@ class OriginReading:
     lon: float
     alt: float
     source: str
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotPosition:
+    """The autopilot's own estimate of where the vehicle is (GLOBAL_POSITION_INT): t autopilot s (time_boot_ms);
+    lat, lon degrees WGS84; alt metres AMSL; speed m/s over ground; course_ned radians (0 = north, CW), None
+    when the vehicle is still (slower than STILL_MPS: the direction of a near-zero velocity is noise)."""
+
+    t: float
+    lat: float
+    lon: float
+    alt: float
+    speed: float
+    course_ned: float | None
+
+
+STILL_MPS = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -257,6 +275,25 @@ class Decoders:
             self.reject(kind, "outside_utm")
             return None
         return OriginReading(lat, lon, alt, kind)
+
+    def autopilot_position(self, msg: Any) -> AutopilotPosition | None:
+        """GLOBAL_POSITION_INT -> AutopilotPosition, or None (counted) while the autopilot has no position
+        (lat = lon = 0) or when a value is out of a ground vehicle's range."""
+        kind = msg.get_type()
+        if msg.lat == 0 and msg.lon == 0:
+            self.reject(kind, "unset")
+            return None
+        lat, lon, alt = msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3
+        if not _on_utm_grid(lat, lon) or abs(alt) > MAX_ALT_M:
+            self.reject(kind, "position_range")
+            return None
+        vn, ve = msg.vx * 0.01, msg.vy * 0.01  # cm/s, NED
+        speed = math.hypot(vn, ve)
+        if speed > MAX_SPEED_MPS:
+            self.reject(kind, "speed_range")
+            return None
+        course = math.atan2(ve, vn) % (2.0 * math.pi) if speed >= STILL_MPS else None
+        return AutopilotPosition(msg.time_boot_ms * 1e-3, lat, lon, alt, speed, course)
 
     def sim_pose(self, msg: Any) -> SimPose | None:
         """SIMSTATE or HIL_STATE_QUATERNION -> the simulator's true pose, or None (counted)."""

@@ -47,9 +47,20 @@ def _ready(sock: socket.socket) -> socket.socket:
 
 
 class TimedTcp(mavutil.mavtcp):
-    """pymavlink's TCP client whose start-up connect attempts each give up after `connect_timeout_s`."""
+    """pymavlink's TCP client whose start-up connect attempts each give up after `connect_timeout_s`.
+
+    wait: when no attempt connects (nothing listens yet: an autopilot still booting, a SITL started after us),
+    open anyway, unconnected (`waiting` True, `port` None, `fd` -1) instead of raising, so that the paced
+    reconnect (`pace_tcp_reconnect`) connects in the loop once the peer listens."""
 
     connect_timeout_s = CONNECT_TIMEOUT_S
+
+    def __init__(self, device: str, *args: Any, wait: bool = False, **kwargs: Any) -> None:
+        self.wait, self.waiting = wait, False
+        super().__init__(device, *args, **kwargs)
+        if self.waiting:
+            self.port.close()
+            self.port, self.fd = None, -1
 
     def do_connect(self) -> None:
         attempts = max(int(self.retries), 1)
@@ -57,18 +68,30 @@ class TimedTcp(mavutil.mavtcp):
             try:
                 sock = socket.create_connection(self.destination_addr, timeout=self.connect_timeout_s)
                 break
-            except OSError:
+            except OSError as exc:
                 self.port = None
-                if k == attempts - 1:
+                if k < attempts - 1:
+                    time.sleep(self.reconnect_delay)
+                    continue
+                if not self.wait:
                     raise
-                time.sleep(self.reconnect_delay)
+                log.warning("no autopilot listening at tcp:%s:%d yet (%s): trying again every second until one "
+                            "does", *self.destination_addr, exc.strerror or exc)
+                self.waiting = True
+                self.port = socket.socket(socket.AF_INET, socket.SOCK_STREAM)  # mavfile needs a descriptor
+                return
         self.port = _ready(sock)
 
 
 def open_tcp(device: str, source_system: int, source_component: int, dialect: str) -> TimedTcp:
-    """A `TimedTcp` for "tcp:HOST:PORT" with autoreconnect, as mavutil.mavlink_connection would build a mavtcp."""
+    """A `TimedTcp` for "tcp:HOST:PORT" with autoreconnect, as mavutil.mavlink_connection would build a mavtcp,
+    but trying once at start-up: a peer not listening yet leaves it waiting, connected later without blocking
+    (`pace_tcp_reconnect`, applied here), so a stop request is never held up by connect attempts."""
     mavutil.set_dialect(dialect)
-    return TimedTcp(device[4:], autoreconnect=True, source_system=source_system, source_component=source_component)
+    conn = TimedTcp(device[4:], autoreconnect=True, retries=1, source_system=source_system,
+                    source_component=source_component, wait=True)
+    pace_tcp_reconnect(conn)
+    return conn
 
 
 def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
@@ -113,9 +136,11 @@ def pace_tcp_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[], f
             sock.close()
             raise ConnectionRefusedError(err, os.strerror(err))
         conn.port, conn.fd = _ready(sock), sock.fileno()  # select() must watch the new socket
-        log.info("TCP link %s:%d reconnected", *conn.destination_addr)
+        first = getattr(conn, "waiting", False)
+        conn.waiting = False
+        log.info("TCP link %s:%d %s", *conn.destination_addr, "connected" if first else "reconnected")
 
-    receive = conn.recv
+    receive = conn.__dict__.setdefault("unpaced_recv", conn.recv)  # pacing again replaces, never stacks
 
     def recv(n: int | None = None) -> bytes:
         try:
@@ -184,7 +209,7 @@ def pace_serial_reconnect(conn: Any, interval_s: float = 1.0, clock: Callable[[]
         log.warning("serial %s reopened at %d baud after %.1f s", conn.device, baud, now - state["since"])
         return True
 
-    receive = conn.recv
+    receive = conn.__dict__.setdefault("unpaced_recv", conn.recv)  # pacing again replaces, never stacks
 
     def recv(n: int | None = None) -> bytes:
         if conn.portdead and not reopen():

@@ -10,11 +10,14 @@ yaw radians NED). `boot_s` is the autopilot's time since boot, seconds; `utc_s` 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from taco_mav.sim.source import SimDrive
+
+if TYPE_CHECKING:
+    from taco_mav.sim.receiver import GnssState
 
 __all__ = ["G", "MG_PER_MPS2", "ardupilot_imu_ints", "attitude", "gps_global_origin", "gps_raw_int", "heartbeat",
            "highres_imu", "home_position", "raw_imu", "scaled_imu", "simstate", "system_time"]
@@ -99,6 +102,16 @@ def gps_raw_int(mav: Any, drive: SimDrive, i: int, boot_s: float, fix: bool, sat
         int(round(float(drive.alt[i]) * 1000.0)), int(round(hdop * 100)), int(round(hdop * 150)),
         int(round(math.hypot(vn, ve) * 100.0)), cog, satellites,
         int(round(float(drive.alt[i]) * 1000.0)), int(round(h_acc_m * 1000)), int(round(h_acc_m * 1500)), 100, 0, 0)
+
+
+def global_position_int(mav: Any, s: GnssState | None, boot_s: float) -> Any:
+    """GLOBAL_POSITION_INT: the autopilot's own estimate `s` (None: it has none yet, lat = lon = 0), time since
+    boot ms, lat/lon degE7, alt mm, velocity NED cm/s, heading cdeg (UINT16_MAX unknown)."""
+    ms = int(round(boot_s * 1e3)) & 0xFFFFFFFF
+    if s is None:
+        return mav.global_position_int_encode(ms, 0, 0, 0, 0, 0, 0, 0, 65535)
+    return mav.global_position_int_encode(ms, _deg_e7(s.lat), _deg_e7(s.lon), int(round(s.alt * 1000.0)), 0,
+                                          _i16(s.vn * 100.0), _i16(s.ve * 100.0), 0, 65535)
 
 
 def home_position(mav: Any, lat: float, lon: float, alt: float, boot_s: float) -> Any:

@@ -20,7 +20,9 @@ a slower companion stretches wall time instead of missing its rate.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 import os
 import threading
 import time
@@ -36,7 +38,8 @@ from taco_mav.mavlink.mavconst import GPS_TYPE_MAV  # noqa: E402
 from taco_mav.sim import encode  # noqa: E402
 from taco_mav.sim.clock import SimClock  # noqa: E402
 from taco_mav.sim.gps_mav import GpsInputMonitor  # noqa: E402
-from taco_mav.sim.receiver import EchoInstance, GnssReceiver, gps_message  # noqa: E402
+from taco_mav.sim.receiver import (GPS_FIX_TYPE_3D_FIX, EchoInstance, GnssReceiver, GnssState,  # noqa: E402
+                                   gps_message)
 from taco_mav.sim.services import AutopilotServices  # noqa: E402
 from taco_mav.sim.source import SimDrive, open_drive  # noqa: E402
 
@@ -47,12 +50,14 @@ __all__ = ["SimOptions", "Simulator"]
 M = mavutil.mavlink
 DATA_STREAMS = (M.MAVLINK_MSG_ID_RAW_IMU, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_SIMSTATE,
                 M.MAVLINK_MSG_ID_SCALED_IMU, M.MAVLINK_MSG_ID_HIGHRES_IMU)
+M_PER_DEG = 111_320.0  # metres per degree of latitude (the autopilot's dead reckoning, metres over seconds)
 # message id -> default interval, s (0 = every data sample, -1 = off until asked for)
 DEFAULT_INTERVALS: dict[int, float] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0, M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0, M.MAVLINK_MSG_ID_GPS_RAW_INT: 0.2,
     M.MAVLINK_MSG_ID_RAW_IMU: 0.0, M.MAVLINK_MSG_ID_ATTITUDE: 0.0, M.MAVLINK_MSG_ID_SIMSTATE: 0.0,
     M.MAVLINK_MSG_ID_SCALED_IMU: -1.0, M.MAVLINK_MSG_ID_HIGHRES_IMU: -1.0, M.MAVLINK_MSG_ID_GPS2_RAW: 0.2,
     M.MAVLINK_MSG_ID_HOME_POSITION: 1.0, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: -1.0,
 }
 
 
@@ -144,6 +149,7 @@ class Simulator:
         self.receiver = GnssReceiver(self.drive, o.gnss_noise_m, o.seed, o.deny_after_s, o.spoof_after_s,
                                      o.spoof_drift_mps, o.spoof_jump_m, o.spoof_bearing_deg)
         self.echo = EchoInstance()
+        self._echo_t = 0.0  # autopilot s the echo's GPS_INPUT was kept
         d = self.drive
         self.home = o.home if o.home is not None else (float(d.true_lat[0]), float(d.true_lon[0]), float(d.alt[0]))
         self.statustexts: list[tuple[float, int, str]] = []
@@ -318,7 +324,7 @@ class Simulator:
             requested.add(self.services.requested.pop(0))
         for msg_id in (M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_HOME_POSITION,
                        M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, M.MAVLINK_MSG_ID_GPS_RAW_INT, M.MAVLINK_MSG_ID_GPS2_RAW,
-                       *DATA_STREAMS):
+                       M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, *DATA_STREAMS):
             interval = self._interval(msg_id)
             if msg_id not in requested and (interval < 0 or T + 1e-9 < due[msg_id]):
                 continue
@@ -348,6 +354,8 @@ class Simulator:
             if gps_type == GPS_TYPE_MAV:
                 return gps_message(mav, instance, T, self.echo.state())
             return gps_message(mav, instance, T, self.receiver.state(i))
+        if msg_id == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            return encode.global_position_int(mav, self._believed(i, T), T)
         if msg_id == M.MAVLINK_MSG_ID_RAW_IMU:
             return encode.raw_imu(mav, d, i, T)
         if msg_id == M.MAVLINK_MSG_ID_SCALED_IMU:
@@ -357,6 +365,23 @@ class Simulator:
         if msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
             return encode.attitude(mav, d, i, T)
         return encode.simstate(mav, d, i)
+
+    def _believed(self, i: int, T: float) -> GnssState | None:
+        """Where this autopilot's EKF puts the vehicle at sample i: what it fuses, the companion's last kept
+        GPS_INPUT, else a real receiver's fix, else its origin (home) at rest; None before it has any."""
+        echo = self.echo.state()
+        if echo.fix_type >= GPS_FIX_TYPE_3D_FIX:  # dead-reckoned on at its velocity (at most 10 s)
+            dt = min(max(T - self._echo_t, 0.0), 10.0)
+            dlat = echo.vn * dt / M_PER_DEG
+            dlon = echo.ve * dt / (M_PER_DEG * math.cos(math.radians(echo.lat)))
+            return dataclasses.replace(echo, lat=echo.lat + dlat, lon=echo.lon + dlon)
+        if any(t not in (0, GPS_TYPE_MAV) for t in self.options.gps_types):  # a real receiver is configured
+            real = self.receiver.state(i)
+            if real.fix_type >= GPS_FIX_TYPE_3D_FIX:
+                return real
+        if not self.options.send_home:
+            return None
+        return GnssState(GPS_FIX_TYPE_3D_FIX, *self.home)
 
     # ------------------------------------------------------------------ receiving
     def _receive(self) -> None:
@@ -393,6 +418,7 @@ class Simulator:
             with self._gps_event:
                 if self.monitor.handle(msg, now) is not None:
                     self.echo.on_gps_input(msg)  # the type-14 instance now reports it
+                    self._echo_t = now
                 self._gps_event.notify_all()
         elif kind == "STATUSTEXT":
             text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
