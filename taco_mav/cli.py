@@ -75,6 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kitti-root", help="KITTI raw root (with --sequences)")
     p.add_argument("--sequences", help="odometry sequence ids, e.g. 04,05")
     p.add_argument("--drive", action="append", default=[], help="a KITTI-layout drive dir (repeatable)")
+    p.add_argument("--tlog", help="a recorded session's mav.tlog (`taco-mav run --record`): its IMU, attitude and "
+                   "the real receiver's fixes, the ground truth (never fused); with --frames and --map")
+    p.add_argument("--frames", help="the session's frames/ folder (with --tlog)")
+    p.add_argument("--map", help="the satellite GeoTIFF the recording is matched against (with --tlog)")
     p.add_argument("--matcher", choices=MATCHERS, help="override the profile's matcher")
     p.add_argument("--out", required=True, help="run folder for results.json, table.md, trajectories, plots "
                    "(refused if it holds results, unless --force)")

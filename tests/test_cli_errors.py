@@ -106,6 +106,11 @@ CASES: dict[str, Case] = {
     "eval_latency_negative": Case("eval --drive {T}/drive --matcher-latency -1 --out {T}/e", 2,
                                   ("--matcher-latency -1",)),
     "eval_nothing": Case("eval --out {T}/e", 2, ("nothing to evaluate",)),
+    "eval_tlog_without_frames": Case("eval --tlog {T}/garbage.tlog --out {T}/e", 2,
+                                     ("--tlog SESSION/mav.tlog --frames SESSION/frames --map",)),
+    "eval_map_alone": Case("eval --drive {T}/drive --map {T}/good.tif --out {T}/e", 2, ("--map goes with --tlog",)),
+    "eval_tlog_missing": Case("eval --tlog {T}/no.tlog --frames {T} --map {T}/good.tif --out {T}/e", 2,
+                              ("--tlog {T}/no.tlog", "no such file")),
     "eval_option_typo": Case("eval --drive {T}/drive --ouput {T}/e", 2, ("--ouput",)),
     # drift
     "drift_tlog_missing": Case("drift --tlog {T}/no.tlog", 2, ("--tlog {T}/no.tlog", "no such file")),

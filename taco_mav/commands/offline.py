@@ -77,8 +77,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
     load_profile(args.profile)  # the profile's own errors first: they name the file and key
     checks.number(args.matcher_latency, "--matcher-latency", 0.0, 60.0)
     check_sources(args)
-    if not args.drive and not args.sequences:
-        raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST or --drive DIR")
+    recording = None
+    if args.tlog or args.frames:
+        if not (args.tlog and args.frames and args.map) or args.drive or args.sequences:
+            raise UsageError("a recording is --tlog SESSION/mav.tlog --frames SESSION/frames --map MAP.tif, "
+                             "without --drive or --sequences")
+        recording = (checks.input_file(args.tlog, "--tlog"), checks.input_dir(args.frames, "--frames"),
+                     checks.input_file(args.map, "--map"))
+    elif args.map:
+        raise UsageError("--map goes with --tlog and --frames (a KITTI or synthetic drive brings its own map)")
+    elif not args.drive and not args.sequences:
+        raise UsageError("nothing to evaluate: give --kitti-root DIR --sequences LIST, --drive DIR, or a recording "
+                         "(--tlog, --frames, --map)")
     if args.drive and args.sequences:
         raise UsageError("give either --sequences (with --kitti-root) or --drive, not both")
     checks.fresh_folder(checks.output_dir(args.out, create=False), "results.json", args.force)
@@ -93,7 +103,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         out=Path(args.out), profile=args.profile, kitti_root=Path(args.kitti_root) if args.kitti_root else None,
         sequences=sequences(args.sequences), drives=tuple(Path(d) for d in args.drive), matcher=args.matcher,
         ablations=ablations, seed=args.seed, latency_s=args.matcher_latency, apply_on_arrival=args.apply_on_arrival,
-        estimator=args.estimator, cross_area=args.cross_area, plots=not args.no_plots, progress=show_progress(args))
+        estimator=args.estimator, cross_area=args.cross_area, plots=not args.no_plots, progress=show_progress(args),
+        recording=recording)
     profile = resolve_profile(req)  # with the command line's overrides (--matcher, --estimator, --cross-area)
     checks.fresh_folder(checks.output_dir(args.out), "results.json", args.force)
     log.info("evaluating with estimator %s, matcher %s into %s", profile.estimator.value, profile.matcher, args.out)

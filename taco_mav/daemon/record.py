@@ -38,6 +38,7 @@ __all__ = ["FRAMES_CSV", "FRAMES_HEADER", "FrameRecorder", "RecordOptions", "sta
 
 FRAMES_CSV = "frames.csv"
 FRAMES_HEADER = "index,t_autopilot_s,t_companion_s,file"
+WAKE_S = 0.02  # wall s the recorder sleeps at most between looks at its clock
 
 
 @dataclass(frozen=True)
@@ -91,16 +92,16 @@ class FrameRecorder:
         period = 1.0 / self.opt.rate_hz
         next_at = self.clock()
         while not self._stop.is_set() and not self.full:
-            try:
-                self._keep_one()
-            except Exception as exc:  # noqa: BLE001 - recording must never take the daemon down
-                self._skip("error")
-                log.debug("record: %s", exc)
-            next_at += period
-            wait = next_at - self.clock()
-            if wait < 0:  # fell behind (a slow disk): skip the missed slots, do not burst
-                next_at, wait = self.clock(), 0.0
-            self._stop.wait(wait)
+            now = self.clock()
+            if now >= next_at:
+                try:
+                    self._keep_one()
+                except Exception as exc:  # noqa: BLE001 - recording must never take the daemon down
+                    self._skip("error")
+                    log.debug("record: %s", exc)
+                next_at = max(next_at + period, now)  # fell behind (a slow disk): skip slots, never burst
+            # short waits: `clock` may be a simulator's, faster than the wall clock this thread sleeps on
+            self._stop.wait(min(max(next_at - self.clock(), 0.0), WAKE_S))
 
     def _skip(self, reason: str) -> None:
         self.skipped[reason] = self.skipped.get(reason, 0) + 1

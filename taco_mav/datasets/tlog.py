@@ -6,8 +6,10 @@ dead-reckoning drift (`taco-mav drift --tlog`).
 - IMU: the first of HIGHRES_IMU, RAW_IMU (id 0), SCALED_IMU present (or `imu_message`), decoded and checked
   by `link.decoders` (body FRD, m/s^2 with gravity, rad/s; autopilot seconds). Each sample takes the ATTITUDE
   nearest to it in autopilot time, carried to the sample's time at its rates as the daemon does (NED radians).
-- Truth: GPS_RAW_INT with fix_type >= 3, projected to the UTM zone of the first fix (ENU metres relative to
-  it); heading = the GNSS course over ground (grid ENU radians) while faster than `course_min_speed_mps`,
+- Truth: the real receiver's fixes (fix_type >= 3): GPS_RAW_INT (GPS1), or GPS2_RAW (GPS2) when GPS1 only
+  echoes our own GPS_INPUT (set-up A, or a daemon on GPS1): an instance most of whose fixes repeat a GPS_INPUT
+  position of the same tlog is an echo, never truth. Projected to the UTM zone of the first fix (ENU metres
+  relative to it); heading = the GNSS course over ground (grid ENU radians) while faster than `course_min_speed_mps`,
   else the compass's. GNSS stamps are put on the autopilot clock by the tlog's receive times: the median
   offset between IMU time and receive time is added to each fix's receive time, so a fix carries the
   receiver's latency (typically 0.1-0.2 s).
@@ -48,6 +50,7 @@ class TlogDrive:
     origin_utm: np.ndarray
     convergence_rad: float
     rejected: dict[str, int] = field(default_factory=dict)
+    receiver: str = "GPS_RAW_INT"  # the message the truth came from
     sequence: str | None = None
     frame_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     camera: GroundCamera | None = None
@@ -68,7 +71,10 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     dec = Decoders()
     imu: dict[str, list] = {}
     att: list[AttitudeReading] = []
-    gps: list[tuple[float, float, float, float, float, float | None]] = []
+    gps: dict[str, list[tuple[float, float, float, float, float, float | None]]] = {"GPS_RAW_INT": [],
+                                                                                      "GPS2_RAW": []}
+    ours: set[tuple[int, int]] = set()  # (lat, lon) degE7 of every GPS_INPUT we sent
+    raw: dict[str, list[tuple[int, int]]] = {"GPS_RAW_INT": [], "GPS2_RAW": []}
     offsets: list[float] = []
     try:
         conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
@@ -88,10 +94,14 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                 a = dec.attitude(msg)
                 if a is not None:
                     att.append(a)
-            elif kind == "GPS_RAW_INT":
+            elif kind in gps:
                 g = dec.gnss(msg)
                 if g is not None:
-                    gps.append((float(getattr(msg, "_timestamp", 0.0)), g.lat, g.lon, g.alt, g.speed, g.course_ned))
+                    gps[kind].append((float(getattr(msg, "_timestamp", 0.0)), g.lat, g.lon, g.alt, g.speed,
+                                      g.course_ned))
+                    raw[kind].append((int(msg.lat), int(msg.lon)))
+            elif kind == "GPS_INPUT":
+                ours.add((int(msg.lat), int(msg.lon)))
     finally:
         conn.close()
     kind = imu_message or next((k for k in IMU_MESSAGES if imu.get(k)), None)
@@ -100,9 +110,13 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                         f"rejected: {dict(dec.rejected)}")
     if len(att) < 2:
         raise DataError(f"{path}: no ATTITUDE messages")
-    if len(gps) < 20:
-        raise DataError(f"{path}: fewer than 20 GPS_RAW_INT 3D fixes (record with GNSS on); rejected: "
-                        f"{dict(dec.rejected)}")
+    echo = {k: bool(v) and sum(p in ours for p in v) > 0.5 * len(v) for k, v in raw.items()}
+    receiver = next((k for k in gps if len(gps[k]) >= 20 and not echo[k]), None)
+    if receiver is None:
+        echoes = [k for k in gps if echo[k]]
+        raise DataError(f"{path}: fewer than 20 real-receiver 3D fixes (record with GNSS on)"
+                        + (f"; {' and '.join(echoes)} only echo our GPS_INPUT" if echoes else "")
+                        + f"; rejected: {dict(dec.rejected)}")
     samples = sorted(imu[kind], key=lambda r: r.t)
     t = np.array([r.t for r in samples])
     keep = np.concatenate([[True], np.diff(t) > 0])
@@ -116,7 +130,7 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     rpy = np.array([(c.roll, c.pitch, c.yaw) for c in (att[k].at(ti) for k, ti in zip(j, t))])  # as the daemon
     offset = float(np.median(offsets))
 
-    G = sorted(gps)
+    G = sorted(gps[receiver])
     lat0, lon0, alt0 = G[0][1], G[0][2], G[0][3]
     proj = UtmProjector(utm_epsg_for(lat0, lon0))
     e0, n0 = proj.to_utm(lat0, lon0)
@@ -133,4 +147,5 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                      enu_heading(first[5]) + conv if first[5] is not None else float(compass[0]))
     return TlogDrive(name=path.stem, imu=ImuStream(t, accel, gyro, rpy), truth=GroundTruth(tg, xy, heading),
                      start=start, utm_epsg=proj.epsg, origin_utm=np.array([e0, n0]),
-                     convergence_rad=conv if math.isfinite(conv) else 0.0, rejected=dict(dec.rejected))
+                     convergence_rad=conv if math.isfinite(conv) else 0.0, rejected=dict(dec.rejected),
+                     receiver=receiver)

@@ -57,6 +57,7 @@ class EvalRequest:
     cross_area: bool = False  # the emulator's FG2 cross-area figures for every drive (else per the profile)
     plots: bool = True
     progress: bool = True
+    recording: tuple[Path, Path, Path] | None = None  # a recorded session: (mav.tlog, frames/, map GeoTIFF)
 
 
 def resolve_profile(req: EvalRequest) -> Profile:
@@ -84,6 +85,11 @@ def resolve_profile(req: EvalRequest) -> Profile:
 
 def load_drives(req: EvalRequest) -> list:
     """The drives a request names: KITTI odometry sequences under --kitti-root, or --drive folders."""
+    if req.recording is not None:
+        from taco_mav.datasets.recording import load_recording
+
+        tlog, frames, mosaic = req.recording
+        return [load_recording(tlog, frames, mosaic)]
     if req.sequences and req.drives:
         raise ConfigError("give either --sequences (with --kitti-root) or --drive, not both")
     if req.sequences:
