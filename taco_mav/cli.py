@@ -138,7 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=live.cmd_run)
 
     p = sub.add_parser("sim", parents=[common], help="autopilot simulator: play a drive as an ArduPilot rover over MAVLink")
-    p.add_argument("--drive", required=True, help="KITTI raw drive folder (..._sync) or synthetic world folder")
+    p.add_argument("--drive", help="KITTI raw drive folder (..._sync) or synthetic world folder")
+    p.add_argument("--tlog", help="instead of --drive: a recorded session's mav.tlog (`taco-mav run --record`), "
+                   "played on its recorded clock, the real receiver as GNSS and truth")
+    p.add_argument("--frames", help="with --tlog: the session's frames/, which the daemon reads with --camera "
+                   "folder:FRAMES (checked to overlap the tlog)")
     p.add_argument("--connect", required=True, help="pymavlink connection to the companion, e.g. udpout:127.0.0.1:14550")
     p.add_argument("--out", required=True, help="folder for results.json (refused if it holds one, unless --force)")
     p.add_argument("--speed", type=float, default=1.0, help="real-time factor (default 1)")

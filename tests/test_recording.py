@@ -104,3 +104,30 @@ def test_frames_of_another_session_are_refused(tmp_path: Path, session: tuple[Pa
     with pytest.raises(DataError, match="within the tlog's IMU span"):
         load_recording(log_dir / "mav.tlog", other, world / "mosaic.tif")
     assert np.isfinite(load_tlog(log_dir / "mav.tlog").truth.xy).all()
+
+
+def test_recording_replayed_to_a_live_daemon(session: tuple[Path, Path, Simulator], tmp_path: Path) -> None:
+    """`taco-mav sim --tlog` plays the recorded session as the autopilot, on the recorded clock, so a daemon with
+    `--camera folder:SESSION/frames` reads the recorded frames at their own times: the replay's reports meet the
+    rate rules and stay within 1.5 m of the recorded receiver (the truth here), from accepted camera fixes."""
+    log_dir, world, _ = session
+    port = free_udp_port()
+    sim = Simulator(log_dir / "mav.tlog", f"udpout:127.0.0.1:{port}", speed=5.0, lockstep=True,
+                    wait_companion_s=10.0, drain_s=0.3, gnss_noise_m=0.0)
+    assert sim.drive.t0_autopilot is not None and sim.drive.duration_s >= 35.0
+    daemon = Daemon(load_profile("synthetic"),
+                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"folder:{log_dir / 'frames'}",
+                                  map_path=world / "mosaic.tif", estimator=Estimator.TACO_PLUS),
+                    clock=sim.clock, wall_clock=sim.utc_now)
+    daemon.start()
+    try:
+        sim.start()
+        assert sim.join(timeout=120.0), "simulator did not finish"
+    finally:
+        daemon.stop()
+        daemon.join(5.0)
+    assert sim.play_start == pytest.approx(sim.drive.t0_autopilot, abs=0.05)  # the recorded clock
+    seq = sim.results()["sequences"][sim.drive.name]
+    assert seq["gps_input_rate_hz"] >= 4.9 and seq["consecutive_gaps_over_245ms"] == 0
+    assert seq["ate_m"] <= 1.5, seq
+    assert daemon.summary()["fixes"].get("accepted", 0) >= 3

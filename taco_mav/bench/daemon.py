@@ -21,6 +21,11 @@ thread with the default output (GPS_INPUT at 5 Hz) and the emulator matcher fed 
 - gps_input_rate_autopilot_hz_1x / _5x: GPS_INPUT per second of the player's (autopilot's) clock, the player
   at real time and 5x faster than real time (`SPEEDUP_S` wall seconds; the daemon on the machine's clock, as
   beside SITL --speedup 5); gps_input_interval_p99_ms_5x: p99 interval there, autopilot ms.
+
+Recording (issue 30): the live path again with a real camera path, a 30 fps video file of the profile's frame
+size read by OpenCV (`VideoSource`), first without then with `--record` (5 Hz JPEGs into a temporary session
+folder). Keys: gps_input_interval_p99_ms_camera, gps_input_interval_p99_ms_recording, and their difference,
+recording_interval_p99_delta_ms (what recording costs the output's timing); recording_frames kept.
 """
 
 from __future__ import annotations
@@ -28,8 +33,10 @@ from __future__ import annotations
 import logging
 import math
 import os
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -40,10 +47,12 @@ from taco_mav.bench.fusion import _drive as _weaving_drive  # noqa: E402
 from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.core import ukf_kernels  # noqa: E402
 from taco_mav.daemon.daemon import Daemon, DaemonOptions  # noqa: E402
+from taco_mav.daemon.record import RecordOptions  # noqa: E402
 from taco_mav.mavlink.connection import free_udp_port  # noqa: E402
 
 log = logging.getLogger(__name__)
 DURATION_S = 15.0
+RECORD_S = 30.0  # each of the two camera runs (150 output intervals: a p99 that is not just the largest)
 SPEEDUP, SPEEDUP_S = 5.0, 6.0
 
 
@@ -127,10 +136,12 @@ def _play(port: int, duration: float, arrivals: list[float], speed: float = 1.0)
     conn.close()
 
 
-def _drive(duration: float, speed: float) -> tuple[Daemon, list[float]]:
+def _drive(duration: float, speed: float, camera: str | None = None, log_dir: Path | None = None,
+           record: RecordOptions | None = None) -> tuple[Daemon, list[float]]:
     """One daemon against the player at `speed`; (the stopped daemon, GPS_INPUT arrivals in autopilot s)."""
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    daemon = Daemon(profile_from_dict({"matcher": "emulator"}),
+                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=camera, log_dir=log_dir, record=record))
     daemon.start()
     time.sleep(0.2)
     arrivals: list[float] = []
@@ -140,6 +151,45 @@ def _drive(duration: float, speed: float) -> tuple[Daemon, list[float]]:
     daemon.stop()
     daemon.join(10.0)
     return daemon, arrivals
+
+
+def _video(path: Path, seconds: float) -> Path:
+    """A 30 fps MJPG video of the default profile's frame size (so the camera check accepts it), each frame
+    different (seeded noise and its number)."""
+    import cv2
+
+    cam = profile_from_dict({}).camera
+    size = (cam.width_px, cam.height_px)
+    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, size)
+    rng = np.random.default_rng(0)
+    base = rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8)
+    for k in range(int(seconds * 30)):
+        img = np.roll(base, 7 * k, axis=1)
+        cv2.putText(img, str(k), (40, 200), cv2.FONT_HERSHEY_SIMPLEX, 4.0, (255, 255, 255), 8)
+        out.write(img)
+    out.release()
+    return path
+
+
+def _p99_gap_ms(arrivals: list[float]) -> float | None:
+    gaps = np.diff(np.array(arrivals[2:])) * 1e3
+    return round(float(np.percentile(gaps, 99)), 2) if len(gaps) >= 10 else None
+
+
+def recording_cost() -> dict[str, float]:
+    """GPS_INPUT interval p99 with a real camera path, without and with --record (module docstring)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        video = str(_video(Path(tmp) / "camera.avi", RECORD_S + 5.0))
+        _, plain = _drive(RECORD_S, 1.0, camera=video)
+        daemon, recorded = _drive(RECORD_S, 1.0, camera=video, log_dir=Path(tmp) / "session",
+                                  record=RecordOptions())
+        frames = (daemon.summary().get("recorded") or {}).get("frames", 0)
+    a, b = _p99_gap_ms(plain), _p99_gap_ms(recorded)
+    if a is None or b is None:
+        log.warning("daemon bench: too few GPS_INPUT with the camera (%d, %d)", len(plain), len(recorded))
+        return {}
+    return {"gps_input_interval_p99_ms_camera": a, "gps_input_interval_p99_ms_recording": b,
+            "recording_interval_p99_delta_ms": round(b - a, 2), "recording_frames": frames}
 
 
 def _rate(arrivals: list[float]) -> float | None:
@@ -176,6 +226,7 @@ def run(progress: bool = True) -> dict[str, float]:
     if rate_1x is not None and rate_5x is not None:
         out.update(gps_input_rate_autopilot_hz_1x=rate_1x, gps_input_rate_autopilot_hz_5x=rate_5x,
                    gps_input_interval_p99_ms_5x=round(float(np.percentile(np.diff(fast[2:]) * 1e3, 99)), 2))
+    out.update(recording_cost())
     log.info("daemon bench: %s (%d IMU samples, %d GPS_INPUT, fixes %s)", out, len(lat_ms), len(arrivals),
              dict(daemon.stats.fixes))
     return out

@@ -124,7 +124,19 @@ def cmd_sim(args: argparse.Namespace) -> int:
     checks.number(args.spoof_after, "--spoof-after", 0.0)
     checks.number(args.spoof_drift, "--spoof-drift", 0.0, 1000.0)
     checks.number(args.wait, "--wait", 0.0, low_open=True)
-    drive = checks.input_dir(args.drive, "--drive")
+    if bool(args.drive) == bool(args.tlog):
+        raise UsageError("give either --drive DIR or --tlog SESSION/mav.tlog")
+    if args.frames and not args.tlog:
+        raise UsageError("--frames goes with --tlog")
+    if args.tlog:
+        drive = checks.input_file(args.tlog, "--tlog")
+        if args.frames:
+            from taco_mav.datasets.recording import load_recording
+
+            load_recording(drive, checks.input_dir(args.frames, "--frames"))  # the frames are this session's
+            log.info("serve the frames to the daemon with --camera folder:%s", args.frames)
+    else:
+        drive = checks.input_dir(args.drive, "--drive")
     out = checks.fresh_folder(checks.output_dir(args.out), "results.json", args.force)
     doc = simulate(drive, args.connect, out, args.speed, deny_after_s=args.deny_after,
                    lockstep=args.lockstep, duration_s=args.duration, gps1_type=args.gps1_type,

@@ -51,6 +51,7 @@ class TlogDrive:
     convergence_rad: float
     rejected: dict[str, int] = field(default_factory=dict)
     receiver: str = "GPS_RAW_INT"  # the message the truth came from
+    t0_unix: float = 0.0  # UTC unix s at the first IMU sample (from the tlog's receive times)
     sequence: str | None = None
     frame_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     camera: GroundCamera | None = None
@@ -148,4 +149,4 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     return TlogDrive(name=path.stem, imu=ImuStream(t, accel, gyro, rpy), truth=GroundTruth(tg, xy, heading),
                      start=start, utm_epsg=proj.epsg, origin_utm=np.array([e0, n0]),
                      convergence_rad=conv if math.isfinite(conv) else 0.0, rejected=dict(dec.rejected),
-                     receiver=receiver)
+                     receiver=receiver, t0_unix=float(t[0] - offset))

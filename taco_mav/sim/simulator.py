@@ -267,6 +267,8 @@ class Simulator:
     def _play(self) -> None:
         self._wait_companion()
         d, opt, mav = self.drive, self.options, self._conn.mav
+        if d.t0_autopilot is not None:  # a recording plays on its own autopilot clock (its frames' times)
+            self.clock.advance_to(d.t0_autopilot)
         self.play_start = start = self.clock.now()
         if opt.lockstep:
             self.clock.hold()

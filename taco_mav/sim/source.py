@@ -51,6 +51,7 @@ class SimDrive:
     utm_epsg: int
     utc0: float
     world_dir: Path | None = None
+    t0_autopilot: float | None = None  # a recording: sample 0 plays at this autopilot time (its recorded one)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -87,8 +88,33 @@ def _from_kitti(kd: KittiDrive, truth: GroundTruth, origin_utm: np.ndarray, worl
         utm_epsg=kd.utm_epsg, utc0=float(kd.t0_unix), world_dir=world_dir)
 
 
+def _from_recording(tlog: Path) -> SimDrive:
+    """A daemon's recorded session (`taco-mav run --log-dir --record`): its IMU and attitude, and the real
+    receiver's fixes as both the GNSS reading and the truth, on the recorded autopilot clock (`t0_autopilot`), so
+    that `--camera folder:SESSION/frames` serves the recorded frames at their own times."""
+    from taco_mav.datasets.tlog import load_tlog
+
+    td = load_tlog(tlog)
+    t = td.imu.t
+    truth = td.truth
+    e = td.origin_utm[0] + np.interp(t, truth.t, truth.xy[:, 0])
+    n = td.origin_utm[1] + np.interp(t, truth.t, truth.xy[:, 1])
+    proj = UtmProjector(td.utm_epsg)
+    lat, lon = (np.atleast_1d(v) for v in proj.to_latlon(e, n))
+    vn, ve = np.gradient(n, t), np.gradient(e, t)  # grid north/east, m/s (convergence: well under 1 %)
+    heading_grid = np.interp(t, truth.t, np.unwrap(truth.heading))
+    true_yaw_ned = wrap_angle(math.pi / 2.0 - (heading_grid - td.convergence_rad))
+    return SimDrive(
+        name=Path(tlog).resolve().parent.name, path=Path(tlog), t=t - t[0], accel_frd=td.imu.accel_frd,
+        gyro_frd=td.imu.gyro_frd, rpy_ned=td.imu.rpy_ned, lat=lat, lon=lon, alt=np.full(len(t), td.start.alt),
+        vn=vn, ve=ve, true_lat=lat, true_lon=lon, true_yaw_ned=np.atleast_1d(true_yaw_ned),
+        truth=GroundTruth(truth.t - t[0], truth.xy, truth.heading), origin_utm=np.asarray(td.origin_utm, float),
+        utm_epsg=td.utm_epsg, utc0=td.t0_unix, t0_autopilot=float(t[0]))
+
+
 def open_drive(path: Path) -> SimDrive:
-    """Open a KITTI raw drive folder (`..._sync` with `oxts/`) or a synthetic world folder (`world.json`).
+    """Open a KITTI raw drive folder (`..._sync` with `oxts/`), a synthetic world folder (`world.json`), or a
+    recorded session (its mav.tlog, or the session folder holding it).
 
     Raises DataError (naming the path) when it is neither or its files are malformed.
     """
@@ -101,8 +127,11 @@ def open_drive(path: Path) -> SimDrive:
     elif (path / "oxts").is_dir():
         kd = load_drive(path)
         drive = _from_kitti(kd, kd.truth, kd.origin_utm, None)
+    elif path.suffix == ".tlog" or (path / "mav.tlog").is_file():
+        drive = _from_recording(path if path.suffix == ".tlog" else path / "mav.tlog")
     else:
-        raise DataError(f"{path}: neither a KITTI raw drive folder (oxts/) nor a synthetic world (world.json)")
+        raise DataError(f"{path}: neither a KITTI raw drive folder (oxts/), a synthetic world (world.json) nor a "
+                        "recorded session (mav.tlog)")
     if len(drive) < 2:
         raise DataError(f"{path}: the drive has {len(drive)} samples; at least 2 are needed to play it")
     if np.any(np.diff(drive.t) <= 0):
