@@ -49,7 +49,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Simul
 
 
 def test_truth_is_the_receiver_never_our_echo(session: tuple[Path, Path, Simulator]) -> None:
-    log_dir, world, sim = session
+    log_dir, world, _ = session
     drive = load_recording(log_dir / "mav.tlog", log_dir / "frames", world / "mosaic.tif")
     assert drive.receiver == "GPS2_RAW"  # GPS_RAW_INT only repeats our GPS_INPUT
     assert len(drive.truth.t) >= 60 and len(drive.frame_times) >= 150
@@ -59,7 +59,7 @@ def test_truth_is_the_receiver_never_our_echo(session: tuple[Path, Path, Simulat
 
 def test_eval_on_the_recording_scores_against_the_receiver(session: tuple[Path, Path, Simulator],
                                                            tmp_path: Path) -> None:
-    log_dir, world, sim = session
+    log_dir, world, _ = session
     out = tmp_path / "run"
     rc = main(["-q", "eval", "--tlog", str(log_dir / "mav.tlog"), "--frames", str(log_dir / "frames"), "--map",
                str(world / "mosaic.tif"), "--profile", "synthetic", "--estimator", "taco+", "--matcher", "classical",

@@ -41,7 +41,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sitl_mission import Gcs, M, arm, build_world, mavutil, score, sent_score, set_ekf_origin, stop_group, wait_ekf  # noqa: E402
@@ -90,6 +90,7 @@ class Px4MissionSpec:
     gcs_sets_origin: bool | None = None
     daemon_args: list[str] = field(default_factory=list)
     params_file: str = "auto"
+    restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO.MISSION and start it again
 
     def sets_origin(self) -> bool:
         return self.setup == "solo" if self.gcs_sets_origin is None else self.gcs_sets_origin
@@ -293,18 +294,26 @@ def run_px4_mission(px4: Path, out: Path, spec: Px4MissionSpec, world: Path | No
         if not set_mode(gcs, MODE_MISSION):
             figures["verdict"] = "mission_mode_refused"
             return _finish(out, gcs, spec, figures, auto_t, daemon)
-        figures.update(_drive(gcs, spec, n_items, auto_t))
+        def restart() -> None:  # as a service manager restarts it: SIGTERM, then the same command again
+            nonlocal daemon
+            stop_group(daemon, signal.SIGTERM)
+            daemon = subprocess.Popen(daemon_cmd, stdout=open(out / "daemon_restarted.log", "w"),
+                                      stderr=subprocess.STDOUT, start_new_session=True)
+
+        figures.update(_drive(gcs, spec, n_items, auto_t, restart if daemon is not None else None))
         return _finish(out, gcs, spec, figures, auto_t, daemon)
     finally:
         stop_group(daemon, signal.SIGINT)
         stop_group(proc, signal.SIGTERM)
 
 
-def _drive(gcs: Px4Gcs, spec: Px4MissionSpec, n_items: int, auto_t: float) -> dict[str, Any]:
+def _drive(gcs: Px4Gcs, spec: Px4MissionSpec, n_items: int, auto_t: float,
+           restart: Callable[[], None] | None = None) -> dict[str, Any]:
     """Pump until the last item is reached (MISSION_ITEM_REACHED) or MISSION_CURRENT says complete after it was
-    active, the timeout, a runaway, or PX4 disarming; hand-over: SIM_GPS_USED 0 after gnss_off_after_s."""
+    active, the timeout, a runaway, or PX4 disarming; hand-over: SIM_GPS_USED 0 after gnss_off_after_s;
+    `restart` (the daemon's) called once spec.restart_after_s after AUTO.MISSION."""
     res: dict[str, Any] = {}
-    gnss_off_t = None
+    gnss_off_t = restart_t = None
     last_seq = n_items - 1
     done = active = False
     reached = -1
@@ -325,6 +334,10 @@ def _drive(gcs: Px4Gcs, spec: Px4MissionSpec, n_items: int, auto_t: float) -> di
         if spec.setup == "handover" and gnss_off_t is None and time.time() - auto_t >= spec.gnss_off_after_s:
             gcs.set_param("SIM_GPS_USED", 0, M.MAV_PARAM_TYPE_INT32)
             gnss_off_t = time.time()
+        if restart is not None and spec.restart_after_s is not None and restart_t is None \
+                and time.time() - auto_t >= spec.restart_after_s:
+            restart()
+            restart_t = time.time()
         if _runaway(gcs, spec, truth_kind=TRUTH, truth_lon="lon", hold=MODE_HOLD):
             res["verdict"] = "runaway_stopped"
             break
@@ -338,6 +351,7 @@ def _drive(gcs: Px4Gcs, spec: Px4MissionSpec, n_items: int, auto_t: float) -> di
     res["mission_s"] = time.time() - auto_t
     res["gnss_off_after_auto_s"] = None if gnss_off_t is None else gnss_off_t - auto_t
     res["disarmed_after_auto_s"] = None if disarmed_t is None else disarmed_t - auto_t
+    res["daemon_restarted_after_auto_s"] = None if restart_t is None else restart_t - auto_t
     return res
 
 
@@ -426,6 +440,8 @@ def main() -> int:
     ap.add_argument("--param", type=_kv, action="append", default=[], metavar="NAME=VALUE",
                     help="PX4 parameter at boot (repeatable)")
     ap.add_argument("--daemon-arg", action="append", default=[], help="extra `taco-mav run` argument (repeatable)")
+    ap.add_argument("--restart-after", type=float, help="SIGTERM the daemon this many seconds after AUTO.MISSION "
+                                                          "and start it again with the same command")
     a = ap.parse_args()
     if not a.px4 or not Path(a.px4).exists():
         print("px4_mission: error: --px4 (or $PX4_SITL) must name the PX4 SITL binary", file=sys.stderr)
@@ -434,7 +450,7 @@ def main() -> int:
                           gnss_off_after_s=a.gnss_off_after, estimator=a.estimator,
                           profile=a.profile or ("px4_rover_gps2" if a.setup == "handover" else "px4_rover"),
                           timeout_s=a.timeout, gcs_sets_origin=a.gcs_origin, extra_params=dict(a.param),
-                          daemon_args=a.daemon_arg, params_file=a.params_file)
+                          daemon_args=a.daemon_arg, params_file=a.params_file, restart_after_s=a.restart_after)
     res = run_px4_mission(Path(a.px4), Path(a.out), spec)
     hidden = ("spec", "statustext", "px4_statustext", "modes", "px4_params")
     print(json.dumps({k: v for k, v in res.items() if k not in hidden}, indent=1, default=float))

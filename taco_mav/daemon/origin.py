@@ -15,7 +15,7 @@ from taco_mav.config import Profile
 from taco_mav.daemon.anchor import (AUTOPILOT_START_SIGMA_M, GNSS_RANK, NO_ORIGIN_TEXTS, START_POSITION_WAIT_S,
                                     OriginCandidate, OriginChooser)
 from taco_mav.daemon.fixes import FixPipeline
-from taco_mav.daemon.gnss import GnssEvent, GnssTracker
+from taco_mav.daemon.gnss import MAX_RANGE_M, GnssEvent, GnssTracker
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.shadow import SHADOW_NAME
 from taco_mav.daemon.state import LiveState
@@ -117,6 +117,9 @@ class OriginHandler:
         assert origin is not None
         e, n = origin.projector.to_utm(p.lat, p.lon)
         xy = (float(e) - float(origin.utm[0]), float(n) - float(origin.utm[1]))
+        if not math.hypot(*xy) <= MAX_RANGE_M:  # PX4 sends one before EKF2 has a global origin: not a position
+            self.decoders.reject(POSITION_MESSAGE, "far_from_origin")
+            return
         sigma = max(AUTOPILOT_START_SIGMA_M, self.echo_h_acc or 0.0)
         if self.state.anchor.start_from_autopilot(xy, p.speed, p.course_ned, p.t, sigma):
             dist = math.hypot(*xy)
