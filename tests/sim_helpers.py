@@ -1,6 +1,7 @@
 """Helpers for the simulator tests: a free loopback UDP port and a minimal companion that echoes the
 simulator's SIMSTATE pose back as GPS_INPUT (a perfect localiser), paced on the simulator's clock;
-`write_tlog`: a drive written as the tlog a GNSS-on recording would be."""
+`write_tlog`: a drive written as the tlog a GNSS-on recording would be; `play`: a simulator played to an in-process
+daemon to its end."""
 
 from __future__ import annotations
 
@@ -104,3 +105,15 @@ def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float
             log.write(encode.gps_raw_int(mav, d, i, T, fix=fix).pack(mav), rx + gps_latency_s)
     log.close()
     return path
+
+
+def play(sim: Any, daemon: Any, timeout_s: float = 120.0) -> None:
+    """Start `daemon` (taco_mav.daemon.Daemon) and `sim` (taco_mav.sim.Simulator), wait for the drive's end, stop
+    the daemon (also when the simulator fails)."""
+    daemon.start()
+    try:
+        sim.start()
+        assert sim.join(timeout=timeout_s), "simulator did not finish"
+    finally:
+        daemon.stop()
+        daemon.join(5.0)

@@ -18,7 +18,7 @@ from taco_mav.daemon.record import FRAMES_HEADER, FrameRecorder, RecordOptions
 from taco_mav.errors import DataError
 from taco_mav.mavlink.timesync import ClockMap
 from taco_mav.sim import Simulator
-from tests.sim_helpers import free_udp_port
+from tests.sim_helpers import free_udp_port, play
 
 OFFSET_S = 1234.5  # autopilot s - companion s in the unit tests
 
@@ -104,13 +104,7 @@ def test_record_through_the_daemon(tmp_path: Path) -> None:
                     DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=log_dir,
                                   estimator=Estimator.TACO_PLUS, record=RecordOptions(rate_hz=10.0)),
                     clock=sim.clock, wall_clock=sim.utc_now)
-    daemon.start()
-    try:
-        sim.start()
-        assert sim.join(timeout=120.0), "simulator did not finish"
-    finally:
-        daemon.stop()
-        daemon.join(5.0)
+    play(sim, daemon)
     seq = sim.results()["sequences"][sim.drive.name]
     assert seq["gps_input_rate_hz"] >= 4.9 and seq["consecutive_gaps_over_245ms"] == 0
     rec = daemon.summary()["recorded"]

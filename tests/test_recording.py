@@ -19,7 +19,7 @@ from taco_mav.datasets.recording import load_recording
 from taco_mav.datasets.tlog import load_tlog
 from taco_mav.errors import DataError
 from taco_mav.sim import Simulator
-from tests.sim_helpers import free_udp_port
+from tests.sim_helpers import free_udp_port, play
 
 
 @pytest.fixture(scope="module")
@@ -38,13 +38,7 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Simul
                     DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}", log_dir=log_dir,
                                   estimator=Estimator.TACO_PLUS, record=RecordOptions(rate_hz=5.0)),
                     clock=sim.clock, wall_clock=sim.utc_now)
-    daemon.start()
-    try:
-        sim.start()
-        assert sim.join(timeout=120.0), "simulator did not finish"
-    finally:
-        daemon.stop()
-        daemon.join(5.0)
+    play(sim, daemon)
     return log_dir, world, sim
 
 
@@ -119,13 +113,7 @@ def test_recording_replayed_to_a_live_daemon(session: tuple[Path, Path, Simulato
                     DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"folder:{log_dir / 'frames'}",
                                   map_path=world / "mosaic.tif", estimator=Estimator.TACO_PLUS),
                     clock=sim.clock, wall_clock=sim.utc_now)
-    daemon.start()
-    try:
-        sim.start()
-        assert sim.join(timeout=120.0), "simulator did not finish"
-    finally:
-        daemon.stop()
-        daemon.join(5.0)
+    play(sim, daemon)
     assert sim.play_start == pytest.approx(sim.drive.t0_autopilot, abs=0.05)  # the recorded clock
     seq = sim.results()["sequences"][sim.drive.name]
     assert seq["gps_input_rate_hz"] >= 4.9 and seq["consecutive_gaps_over_245ms"] == 0
