@@ -223,7 +223,7 @@ class Anchor:
             self.params, ukf=dataclasses.replace(self.params.ukf, initial_sigma_xy_m=sigma_xy))
         self._made = (params, t, (float(xy[0]), float(xy[1])), heading,
                       self.start_speed if speed is None else speed, conv)
-        loc = self.twin()
+        loc = self._build()
         self.generation += 1
         log.info("localiser anchored at t=%.3f s, xy (%.1f, %.1f) m, heading %.1f deg", t, xy[0], xy[1],
                  math.degrees(heading))
@@ -231,6 +231,10 @@ class Anchor:
 
     def twin(self) -> Localiser:
         """A Localiser exactly as the last one `localiser` made (shadow mode's GNSS-free twin starts with it)."""
+        return self._build()
+
+    def _build(self) -> Localiser:
+        """A Localiser from the arguments `localiser` last worked out."""
         assert self._made is not None
         params, t, xy, heading, speed, conv = self._made
         return make_localiser(params, t, xy[0], xy[1], heading, speed, record=False, heading_offset=conv)

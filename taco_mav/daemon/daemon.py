@@ -222,8 +222,9 @@ class Daemon:
             self.recorder.stop()
         self.fixes.stop()
         if self.state.shadow is not None:
-            log.info("%s", self.state.shadow.line())
-            self.reporter.status(SEV_INFO, self.state.shadow.line()[:50])
+            line = self.state.shadow.line()
+            log.info("%s", line)
+            self.reporter.status(SEV_INFO, line[:50])
         self.reporter.event("stop", stats=self.summary())
         self.reporter.close()
         if self.link is not None:

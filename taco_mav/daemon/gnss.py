@@ -28,13 +28,13 @@ from typing import Any
 import numpy as np
 
 from taco_mav.core.types import GnssFix, GnssOutcome
-from taco_mav.mavlink.decoders import GnssReading
+from taco_mav.mavlink.decoders import AutopilotPosition, GnssReading
 from taco_mav.mavlink.encoders import Origin
 from taco_mav.mavlink.mavconst import GPS_TYPE_MAV, GPS_TYPE_NONE, SEV_NOTICE, SEV_WARNING
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GnssEvent", "GnssTracker", "gnss_fix", "moved_from_origin", "sigma_h_of", "SEV_WARNING",
+__all__ = ["GnssEvent", "GnssTracker", "distance_m", "gnss_fix", "moved_from_origin", "sigma_h_of", "SEV_WARNING",
            "SEV_NOTICE"]
 
 DEFAULT_SIGMA_V_MPS = 0.5  # speed 1-sigma when the receiver reports none
@@ -65,8 +65,7 @@ def sigma_h_of(r: GnssReading, hdop_uere_m: float) -> float:
 def gnss_fix(r: GnssReading, origin: Origin, hdop_uere_m: float, t: float | None = None) -> GnssFix:
     """The reading as a Localiser measurement: ENU metres from `origin`, grid velocity (None when speed or
     course is unknown while moving), 1-sigma accuracies. t: autopilot s (default the reading's own stamp)."""
-    e, n = origin.projector.to_utm(r.lat, r.lon)
-    xy = np.array([float(e), float(n)]) - origin.utm
+    xy = origin.xy(r.lat, r.lon)
     vel: np.ndarray | None = None
     if r.speed_known and r.course_ned is not None:
         angle = math.pi / 2.0 - r.course_ned + origin.convergence
@@ -77,7 +76,7 @@ def gnss_fix(r: GnssReading, origin: Origin, hdop_uere_m: float, t: float | None
     return GnssFix(r.t if t is None else t, xy, vel, sigma_h_of(r, hdop_uere_m), float(sigma_v))
 
 
-def _distance_m(a: GnssReading, b: GnssReading | Origin) -> float:
+def distance_m(a: GnssReading | AutopilotPosition, b: GnssReading | Origin) -> float:
     """Flat-earth distance between two positions (lat, lon degrees), metres (for plausibility checks)."""
     dn = (a.lat - b.lat) * M_PER_DEG
     de = (a.lon - b.lon) * M_PER_DEG * math.cos(math.radians(a.lat))
@@ -156,7 +155,7 @@ class GnssTracker:
         if role != "real":
             self.counts[f"gps{instance}_{role}"] += 1
             return None, []
-        if reading is not None and origin is not None and not _distance_m(reading, origin) <= MAX_RANGE_M:
+        if reading is not None and origin is not None and not distance_m(reading, origin) <= MAX_RANGE_M:
             self.counts["far_from_origin"] += 1
             return None, []
         self._heard[instance] = now
@@ -173,7 +172,7 @@ class GnssTracker:
                 self._run_since, self._steady = None, []
                 self.counts[f"gps{instance}_no_fix"] += 1
             return None, self.tick(now)
-        if self._steady and _distance_m(self._steady[-1], reading) > STEADY_STEP_M:
+        if self._steady and distance_m(self._steady[-1], reading) > STEADY_STEP_M:
             self._steady = []
         self._steady = (self._steady + [reading])[-STEADY_FIXES:]
         self.latest, self.latest_at = reading, now

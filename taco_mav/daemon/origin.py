@@ -15,14 +15,14 @@ from taco_mav.config import Profile
 from taco_mav.daemon.anchor import (AUTOPILOT_START_SIGMA_M, GNSS_RANK, NO_ORIGIN_TEXTS, START_POSITION_WAIT_S,
                                     OriginCandidate, OriginChooser)
 from taco_mav.daemon.fixes import FixPipeline
-from taco_mav.daemon.gnss import MAX_RANGE_M, GnssEvent, GnssTracker
+from taco_mav.daemon.gnss import MAX_RANGE_M, GnssEvent, GnssTracker, distance_m
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.shadow import SHADOW_NAME
 from taco_mav.daemon.state import LiveState
 from taco_mav.mavlink import encoders
 from taco_mav.mavlink.connection import Link
-from taco_mav.mavlink.decoders import (GNSS_MESSAGES, MAX_H_ACC_M, ORIGIN_MESSAGES, POSITION_MESSAGE,
-                                       AutopilotPosition, Decoders, GnssReading)
+from taco_mav.mavlink.decoders import (GNSS_MESSAGES, ORIGIN_MESSAGES, POSITION_MESSAGE, AutopilotPosition,
+                                       Decoders, GnssReading)
 from taco_mav.mavlink.mavconst import SEV_INFO, SEV_WARNING
 from taco_mav.mavlink.requests import MessageRequest
 
@@ -115,11 +115,11 @@ class OriginHandler:
         accuracy our GPS instance last showed (what the previous run reported)."""
         origin = self.state.origin
         assert origin is not None
-        e, n = origin.projector.to_utm(p.lat, p.lon)
-        xy = (float(e) - float(origin.utm[0]), float(n) - float(origin.utm[1]))
-        if not math.hypot(*xy) <= MAX_RANGE_M:  # PX4 sends one before EKF2 has a global origin: not a position
+        if not distance_m(p, origin) <= MAX_RANGE_M:  # PX4 sends one before EKF2 has a global origin: no position
             self.decoders.reject(POSITION_MESSAGE, "far_from_origin")
             return
+        x, y = origin.xy(p.lat, p.lon)
+        xy = (float(x), float(y))
         sigma = max(AUTOPILOT_START_SIGMA_M, self.echo_h_acc or 0.0)
         if self.state.anchor.start_from_autopilot(xy, p.speed, p.course_ned, p.t, sigma):
             dist = math.hypot(*xy)
@@ -147,9 +147,10 @@ class OriginHandler:
         instance, now = GNSS_MESSAGES[msg.get_type()], self.clock()
         real = self.gnss.is_real(instance)
         reading = self.decoders.gnss(msg) if real else None
-        h_acc_mm = int(getattr(msg, "h_acc", 0))
-        if not real and st.loc is None and int(msg.fix_type) >= 3 and 0 < h_acc_mm <= MAX_H_ACC_M * 1e3:
-            self.echo_h_acc = h_acc_mm * 1e-3  # what our previous run last reported (a restart)
+        if not real and st.loc is None and int(msg.fix_type) >= 3:  # our echo: what our previous run last reported
+            echo = self.decoders.gnss(msg)
+            if echo is not None and echo.h_acc_m is not None:
+                self.echo_h_acc = echo.h_acc_m
         r, events = self.gnss.on_message(instance, reading, int(msg.fix_type), now, st.origin)
         self._events(events)
         if r is None:

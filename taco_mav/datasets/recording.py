@@ -10,53 +10,22 @@ The camera is the profile's (`GroundCamera.from_config`), as in the daemon that 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from taco_mav.camera.geometry import GroundCamera
 from taco_mav.camera.sources import FolderSource
-from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix
-from taco_mav.datasets.tlog import load_tlog
+from taco_mav.datasets.tlog import TlogDrive, load_tlog
 from taco_mav.errors import DataError
 
-__all__ = ["RecordedDrive", "load_recording"]
-
-
-@dataclass(frozen=True)
-class RecordedDrive:
-    """A Drive (datasets.base) from a recorded session: the tlog's IMU and receiver, the recorded frames (paths:
-    one JPEG per entry of frame_times, autopilot s), the map the daemon matched against."""
-
-    name: str
-    imu: ImuStream
-    truth: GroundTruth
-    start: StartFix
-    utm_epsg: int
-    origin_utm: np.ndarray
-    convergence_rad: float
-    frame_times: np.ndarray
-    paths: tuple[Path, ...]
-    mosaic: Path | None
-    receiver: str = "GPS_RAW_INT"
-    rejected: dict[str, int] = field(default_factory=dict)
-    sequence: str | None = None
-    camera: GroundCamera | None = None
-
-    def frame(self, index: int) -> np.ndarray:
-        """Frame `index` as RGB uint8 (H, W, 3); DataError naming the file when it cannot be read."""
-        bgr = cv2.imread(str(self.paths[index]), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DataError(f"{self.paths[index]}: recorded frame not readable")
-        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+__all__ = ["load_recording"]
 
 
 def load_recording(tlog: Path, frames: Path, mosaic: Path | None = None,
-                   imu_message: str | None = None) -> RecordedDrive:
-    """The session's tlog and frames folder as a drive (DataError naming the file at fault). Frames outside the
-    tlog's IMU span are dropped; at least two must remain."""
+                   imu_message: str | None = None) -> TlogDrive:
+    """The session's tlog with its recorded frames and the map they are matched on (DataError naming the file at
+    fault). Frames outside the tlog's IMU span are dropped; at least two must remain."""
     drive = load_tlog(Path(tlog), imu_message)
     src = FolderSource(Path(frames))
     times = np.array(src.times)
@@ -66,9 +35,6 @@ def load_recording(tlog: Path, frames: Path, mosaic: Path | None = None,
                         f"{drive.imu.t[0]:.1f}-{drive.imu.t[-1]:.1f} s (autopilot time): not this session's frames?")
     if mosaic is not None and not Path(mosaic).is_file():
         raise DataError(f"{mosaic}: map not found")
-    name = Path(tlog).resolve().parent.name or Path(tlog).stem
-    return RecordedDrive(name=name, imu=drive.imu, truth=drive.truth, start=drive.start, utm_epsg=drive.utm_epsg,
-                         origin_utm=drive.origin_utm, convergence_rad=drive.convergence_rad,
-                         frame_times=times[inside], paths=tuple(p for p, k in zip(src.paths, inside) if k),
-                         mosaic=Path(mosaic) if mosaic is not None else None, receiver=drive.receiver,
-                         rejected=drive.rejected)
+    return dataclasses.replace(drive, name=Path(tlog).resolve().parent.name or Path(tlog).stem,
+                               frame_times=times[inside], frame_paths=tuple(p for p, k in zip(src.paths, inside) if k),
+                               mosaic=Path(mosaic) if mosaic is not None else None)

@@ -22,6 +22,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -39,8 +40,9 @@ __all__ = ["TlogDrive", "load_tlog"]
 
 @dataclass(frozen=True)
 class TlogDrive:
-    """A Drive (datasets.base) read from a tlog; no camera frames. convergence_rad: meridian convergence at the
-    origin (grid heading = true heading + convergence)."""
+    """A Drive (datasets.base) read from a tlog. convergence_rad: meridian convergence at the origin (grid
+    heading = true heading + convergence). No camera frames, unless a recording's are added
+    (`datasets.recording`: frame_paths, one JPEG per entry of frame_times, and the map it was matched on)."""
 
     name: str
     imu: ImuStream
@@ -56,9 +58,16 @@ class TlogDrive:
     frame_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     camera: GroundCamera | None = None
     mosaic: Path | None = None
+    frame_paths: tuple[Path, ...] = ()
 
     def frame(self, index: int) -> np.ndarray:
-        raise DataError(f"{self.name}: a tlog has no camera frames")
+        """Frame `index` as RGB uint8 (H, W, 3); DataError naming the file when it cannot be read."""
+        if not self.frame_paths:
+            raise DataError(f"{self.name}: a tlog has no camera frames")
+        bgr = cv2.imread(str(self.frame_paths[index]), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise DataError(f"{self.frame_paths[index]}: recorded frame not readable")
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: float = 2.0) -> TlogDrive:

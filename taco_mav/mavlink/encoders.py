@@ -60,6 +60,12 @@ class Origin:
         e, n = proj.to_utm(lat, lon)
         return cls(float(lat), float(lon), float(alt), proj, np.array([e, n]), float(proj.grid_convergence(lat, lon)))
 
+    def xy(self, lat: float, lon: float) -> np.ndarray:
+        """ENU metres relative to the origin (on its UTM grid) of a WGS84 point (degrees); the inverse of
+        `latlon`."""
+        e, n = self.projector.to_utm(lat, lon)
+        return np.array([float(e), float(n)]) - self.utm
+
     def latlon(self, xy: np.ndarray) -> tuple[float, float]:
         """WGS84 degrees of an ENU point (metres relative to the origin)."""
         lat, lon = self.projector.to_latlon(self.utm[0] + float(xy[0]), self.utm[1] + float(xy[1]))

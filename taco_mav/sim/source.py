@@ -71,20 +71,27 @@ class SimDrive:
         return int(np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1))
 
 
+def _true_pose(t: np.ndarray, truth: GroundTruth, origin_utm: np.ndarray, epsg: int) -> tuple[
+        np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The truth at times t (s, the truth's clock): lat, lon (degrees WGS84), yaw NED (true, radians), and the
+    grid east / north (UTM metres) they come from."""
+    proj = UtmProjector(epsg)
+    e = origin_utm[0] + np.interp(t, truth.t, truth.xy[:, 0])
+    n = origin_utm[1] + np.interp(t, truth.t, truth.xy[:, 1])
+    lat, lon = (np.atleast_1d(v) for v in proj.to_latlon(e, n))
+    conv = np.asarray(proj.grid_convergence(lat, lon), dtype=float)
+    heading_grid = np.interp(t, truth.t, np.unwrap(truth.heading))
+    return lat, lon, np.atleast_1d(wrap_angle(math.pi / 2.0 - (heading_grid - conv))), e, n
+
+
 def _from_kitti(kd: KittiDrive, truth: GroundTruth, origin_utm: np.ndarray, world_dir: Path | None) -> SimDrive:
     ox = kd.oxts
-    proj = UtmProjector(kd.utm_epsg)
-    e = origin_utm[0] + np.interp(kd.imu.t, truth.t, truth.xy[:, 0])
-    n = origin_utm[1] + np.interp(kd.imu.t, truth.t, truth.xy[:, 1])
-    true_lat, true_lon = proj.to_latlon(e, n)
-    conv = np.asarray(proj.grid_convergence(true_lat, true_lon), dtype=float)
-    heading_grid = np.interp(kd.imu.t, truth.t, np.unwrap(truth.heading))
-    true_yaw_ned = wrap_angle(math.pi / 2.0 - (heading_grid - conv))
+    true_lat, true_lon, true_yaw_ned, _, _ = _true_pose(kd.imu.t, truth, origin_utm, kd.utm_epsg)
     return SimDrive(
         name=kd.name, path=kd.path, t=kd.imu.t - kd.imu.t[0], accel_frd=kd.imu.accel_frd, gyro_frd=kd.imu.gyro_frd,
         rpy_ned=kd.imu.rpy_ned, lat=ox[:, OXTS["lat"]], lon=ox[:, OXTS["lon"]], alt=ox[:, OXTS["alt"]],
-        vn=ox[:, OXTS["vn"]], ve=ox[:, OXTS["ve"]], true_lat=np.atleast_1d(true_lat), true_lon=np.atleast_1d(true_lon),
-        true_yaw_ned=np.atleast_1d(true_yaw_ned), truth=truth, origin_utm=np.asarray(origin_utm, dtype=float),
+        vn=ox[:, OXTS["vn"]], ve=ox[:, OXTS["ve"]], true_lat=true_lat, true_lon=true_lon, true_yaw_ned=true_yaw_ned,
+        truth=truth, origin_utm=np.asarray(origin_utm, dtype=float),
         utm_epsg=kd.utm_epsg, utc0=float(kd.t0_unix), world_dir=world_dir)
 
 
@@ -95,19 +102,13 @@ def _from_recording(tlog: Path) -> SimDrive:
     from taco_mav.datasets.tlog import load_tlog
 
     td = load_tlog(tlog)
-    t = td.imu.t
-    truth = td.truth
-    e = td.origin_utm[0] + np.interp(t, truth.t, truth.xy[:, 0])
-    n = td.origin_utm[1] + np.interp(t, truth.t, truth.xy[:, 1])
-    proj = UtmProjector(td.utm_epsg)
-    lat, lon = (np.atleast_1d(v) for v in proj.to_latlon(e, n))
+    t, truth = td.imu.t, td.truth
+    lat, lon, true_yaw_ned, e, n = _true_pose(t, truth, td.origin_utm, td.utm_epsg)
     vn, ve = np.gradient(n, t), np.gradient(e, t)  # grid north/east, m/s (convergence: well under 1 %)
-    heading_grid = np.interp(t, truth.t, np.unwrap(truth.heading))
-    true_yaw_ned = wrap_angle(math.pi / 2.0 - (heading_grid - td.convergence_rad))
     return SimDrive(
         name=Path(tlog).resolve().parent.name, path=Path(tlog), t=t - t[0], accel_frd=td.imu.accel_frd,
         gyro_frd=td.imu.gyro_frd, rpy_ned=td.imu.rpy_ned, lat=lat, lon=lon, alt=np.full(len(t), td.start.alt),
-        vn=vn, ve=ve, true_lat=lat, true_lon=lon, true_yaw_ned=np.atleast_1d(true_yaw_ned),
+        vn=vn, ve=ve, true_lat=lat, true_lon=lon, true_yaw_ned=true_yaw_ned,
         truth=GroundTruth(truth.t - t[0], truth.xy, truth.heading), origin_utm=np.asarray(td.origin_utm, float),
         utm_epsg=td.utm_epsg, utc0=td.t0_unix, t0_autopilot=float(t[0]))
 
