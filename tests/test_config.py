@@ -5,7 +5,7 @@ import pytest
 from taco_mav.config import (Estimator, Profile, load_profile, localiser_params, profile_from_dict, profile_to_dict,
                              replace_in)
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 from taco_mav.errors import ConfigError
 
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from taco_mav.core.gnss_guard import (GnssGuard, GuardState, bias_change_variance, filter_offset_variance,
+from taco_mav.core.gnss.guard import (GnssGuard, GuardState, bias_change_variance, filter_offset_variance,
                                       receiver_variances, window_threshold)
-from taco_mav.core.gnss_params import GnssParams
-from taco_mav.core.gnss_shadow import Anchor, DeadReckoner, dr_displacement, shadow, shadow_velocity
+from taco_mav.core.gnss.params import GnssParams
+from taco_mav.core.gnss.shadow import Anchor, DeadReckoner, dr_displacement, shadow, shadow_velocity
 
 RATE = 5.0  # receiver readings per second
 SIGMA_H = 1.5  # the receiver's reported 1-sigma, m

@@ -16,7 +16,7 @@ import pytest
 from helpers import OracleMatcher, SimDrive, simulate
 
 from taco_mav.config import localiser_params, profile_from_dict
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.search import body_to_world
 
 DRIVE_S = 300.0

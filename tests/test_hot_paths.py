@@ -10,7 +10,7 @@ from collections import deque
 import numpy as np
 
 from taco_mav.core.preintegration import Preintegrator, enu_heading, level_forward_accel, wrap_angle
-from taco_mav.core.stationary import StationaryDetector
+from taco_mav.core.plus.stationary import StationaryDetector
 from taco_mav.core.types import ImuSample
 
 

@@ -8,10 +8,10 @@ import math
 import numpy as np
 from helpers import OracleMatcher, simulate
 
-from taco_mav.core.imu_check import UnaidedTrack
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.plus.imu_check import UnaidedTrack
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 
 
 def test_unaided_track_integrates_and_flags_a_disagreement():
@@ -89,7 +89,7 @@ def test_a_cruise_taken_for_a_stop_is_caught_and_its_speed_given_back():
     assert kinds.count("speed_restored") >= 1 and "imu_disagrees" in kinds and "imu_agrees" in kinds
     assert err.max() < 5.0
     assert np.mean(err <= 3.0 * sig) > 0.95
-    assert loc.lock.losses == 0
+    assert loc.mode.lock.losses == 0
 
 
 def test_the_autopilot_drive_command_vetoes_zero_velocity_updates():

@@ -8,9 +8,9 @@ import numpy as np
 from helpers import simulate
 from test_imu_check import ROVER, _sitl_like
 
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 
 
 def _camera(drive, t0: float, t1: float, rng, sigma: float = 0.02):

@@ -6,11 +6,22 @@ import math
 import numpy as np
 import pytest
 
-from taco_mav.core.lock import LockMonitor, LockState
-from taco_mav.core.plus import (FixNoiseScale, VarianceFactor, bias_decay, consensus, cross_arm, defer_answer,
-                                grid_rings, hex_offsets, process_noise_plus)
-from taco_mav.core.plus_params import PlusParams
-from taco_mav.core.stationary import StationaryDetector
+from taco_mav.core.plus.lock import LockMonitor, LockState
+from taco_mav.core.plus.noise import (
+    FixNoiseScale,
+    VarianceFactor,
+    bias_decay,
+    process_noise_plus,
+)
+from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.plus.search import (
+    consensus,
+    cross_arm,
+    defer_answer,
+    grid_rings,
+    hex_offsets,
+)
+from taco_mav.core.plus.stationary import StationaryDetector
 from taco_mav.core.ukf import PlanarUkf
 
 

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from taco_mav.core.speed_check import SpeedCheck
+from taco_mav.core.plus.speed_check import SpeedCheck
 
 
 def _run(seed: int, drag_from: float | None, drag_mps: float = 0.5, duration: float = 120.0, scale: float = 1.04):

@@ -3,7 +3,7 @@ away has no vibration at all) and a rough cruise."""
 
 import numpy as np
 
-from taco_mav.core.stationary import StationaryDetector
+from taco_mav.core.plus.stationary import StationaryDetector
 
 G = 9.80665
 

@@ -180,9 +180,9 @@ def test_positive_definiteness_decision_matches_eigvalsh_at_the_floor() -> None:
 
 
 def test_process_noise_plus_kernel_matches_numpy() -> None:
-    """plus.process_noise_plus (compiled) against its numpy formulation, with and without the compass bias."""
-    from taco_mav.core.plus import bias_decay, process_noise_plus
-    from taco_mav.core.plus_params import PlusParams
+    """plus.noise.process_noise_plus (compiled) against its numpy formulation, with and without the compass bias."""
+    from taco_mav.core.plus.noise import bias_decay, process_noise_plus
+    from taco_mav.core.plus.params import PlusParams
 
     rng = np.random.default_rng(8)
     for sigma_beta in (0.0, 0.01):

@@ -17,9 +17,9 @@ import time
 import numpy as np
 
 from taco_mav.core import ukf_kernels
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.params import LocaliserParams, TriggerParams
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.types import ImuSample
 
 G = 9.80665

@@ -1,5 +1,5 @@
-"""The Localiser: the TACO pipeline (paper Fig. 2) as one object that the offline evaluator and the live
-daemon both drive.
+"""The Localiser: the TACO pipeline (paper Fig. 2) as one object that the offline evaluator and the live daemon both
+drive, in either estimator mode.
 
     loc = Localiser(params, t0, heading=..., speed=...)
     loc.add_imu(sample)            # any rate, irregular dt; frame-rate UKF predict inside
@@ -8,7 +8,14 @@ daemon both drive.
     loc.estimate()                 # Estimate(t, xy, theta, speed, cov_xy, ...)
     loc.smoothed()                 # Pose2 smoother over the whole run (offline)
 
-World frame: ENU metres relative to the origin (the start-up GNSS reading); heading ENU radians.
+The Localiser owns the pipeline every mode shares: the preintegrator, the UKF, the bounded frame history that a
+late fix or GNSS reading rewinds to and replays, the query in flight, the real-GNSS fusion (`gnss.fusion`) and
+the offline records. What differs between the paper's method and taco+ (the filter's noise, the trigger, what an
+answer does, the reported accuracy) is its `mode`, chosen by the parameters: `PaperMode` (paper.py) when
+params.plus is None, else `PlusMode` (plus/mode.py); both answer the `Mode` protocol (mode.py), so callers never
+ask which one they hold.
+
+World frame: ENU metres relative to the origin (the start-up GNSS reading); heading ENU radians; autopilot s.
 """
 
 from __future__ import annotations
@@ -20,19 +27,32 @@ from typing import Sequence
 
 import numpy as np
 
-from taco_mav.core.error_model import AnchorWindow, ErrorTerms, HighPass, MomentAccumulator, error_terms
+from taco_mav.core.error_model import (
+    AnchorWindow,
+    ErrorTerms,
+    HighPass,
+    MomentAccumulator,
+    error_terms,
+)
 from taco_mav.core.frames import FixOutcome, Tick
-from taco_mav.core.gate import passes_yaw_gate, yaw_residual
-from taco_mav.core.gnss_fusion import GnssFusion
+from taco_mav.core.gnss.fusion import GnssFusion
+from taco_mav.core.mode import Mode
+from taco_mav.core.paper import PaperMode
 from taco_mav.core.params import LocaliserParams
+from taco_mav.core.plus.mode import PlusMode
 from taco_mav.core.preintegration import Preintegrator, wrap_angle
-from taco_mav.core.search import (best_candidate, cross_offsets, cross_spacing, fix_position, forward_bias,
-                                  search_centres, trigger_reason)
+from taco_mav.core.search import search_centres
 from taco_mav.core.smoother import FixNode, SmoothResult, smooth
-from taco_mav.core.types import Estimate, FixQuery, ImuSample, MatchResult, horizontal_sigma
-from taco_mav.core.ukf import PlanarUkf, fix_covariance, fix_sigmas, process_noise, process_sigmas
-
-_NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
+from taco_mav.core.types import (
+    Estimate,
+    FixQuery,
+    GnssFix,
+    GnssOutcome,
+    ImuSample,
+    MatchResult,
+    horizontal_sigma,
+)
+from taco_mav.core.ukf import fix_covariance, fix_sigmas
 
 
 @dataclass
@@ -42,9 +62,9 @@ class _Pending:
     x_at_capture: np.ndarray
 
 
-class Localiser(GnssFusion):
-    """TACO paper mode (plus real GNSS while it is honest: `add_gnss`, see gnss_fusion.py). All times in
-    autopilot seconds."""
+class Localiser:
+    """The TACO pipeline in paper mode or taco+ (`mode`), plus real GNSS while it is honest (`add_gnss`). All times
+    in autopilot seconds."""
 
     def __init__(self, params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
                  speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> None:
@@ -58,19 +78,16 @@ class Localiser(GnssFusion):
                                  max_dt_s=params.imu.max_dt_s, heading_offset=heading_offset)
         self.highpass = HighPass(params.imu.accel_highpass_hz)
         self._interval_residual = MomentAccumulator()
-        s_xy, s_th = params.ukf.initial_sigma_xy_m, params.ukf.initial_sigma_theta_rad
-        self.ukf = PlanarUkf(np.array([x, y, heading]), np.diag([s_xy**2, s_xy**2, s_th**2]),
-                             params.ukf.alpha, params.ukf.beta, params.ukf.kappa)
         self.t = t0
         self._next_tick = t0 + self.frame_dt
         self._window = AnchorWindow()
-        self._terms = ErrorTerms(0.0, 0.0, 0.0)
-        self._last_fix_t = t0
+        self.terms = ErrorTerms(0.0, 0.0, 0.0)  # the error model's terms at the last frame (m)
+        self.last_fix_t = t0  # capture time of the last answered query (on arrival: its arrival), s
         self._query_id = 0
         self._ready: FixQuery | None = None
         self._pending: _Pending | None = None
         frames = int(math.ceil(params.latency.history_s * params.imu.frame_rate_hz))
-        self._history: deque[Tick] = deque(maxlen=max(2, frames + 2))
+        self.history: deque[Tick] = deque(maxlen=max(2, frames + 2))  # the frames a late answer rewinds to
         self._nodes = 0
         # Offline records (record=True): online track, smoother inputs, outcomes.
         self.track: list[tuple[float, float, float, float, float, float, float]] = []  # t, x, y, th, Pxx, Pxy, Pyy
@@ -80,42 +97,48 @@ class Localiser(GnssFusion):
         self._graph_fixes: dict[int, FixNode] = {}
         self.outcomes: list[FixOutcome] = []
         self.queries: list[FixQuery] = []
+        self.mode: Mode = PaperMode(self) if params.plus is None else PlusMode(self, params.plus)
+        self.ukf = self.mode.make_ukf(x, y, heading)
         self._record_track(t0)
-        self._gnss_init()
+        self.gnss = GnssFusion(self, params.gnss, self.mode)
 
     # ------------------------------------------------------------------ IMU path
     def add_imu(self, sample: ImuSample) -> None:
         """Integrate one IMU sample (FRD specific force, gyro, NED attitude); at each frame boundary run the
         UKF predict on the accumulated increment and evaluate the trigger."""
+        fresh = sample.t > self.pre.t
+        self.mode.before_imu(fresh)
         dt = self.pre.add(sample)
-        if dt <= 0.0:
-            return
-        self.t = sample.t
-        self._gnss_imu(sample.t, dt)
-        self._interval_residual.add(self.highpass.step(self.pre.accel_fwd, dt))
-        # A frame closes at the sample nearest its slot (within half a sample interval, at most a quarter
-        # period), so timestamp jitter (KITTI's 10 Hz OXTS wanders by ~+-10 ms) neither skips nor doubles frames.
-        tol = min(0.25 * self.frame_dt, 0.5 * dt)
-        if self.t >= self._next_tick - tol:
-            while self._next_tick <= self.t + tol:
-                self._next_tick += self.frame_dt
-            self._frame()
+        if dt > 0.0:
+            self.t = sample.t
+            self.gnss.on_imu(sample.t, dt)
+            self._interval_residual.add(self.highpass.step(self.pre.accel_fwd, dt))
+            # A frame closes at the sample nearest its slot (within half a sample interval, at most a quarter
+            # period), so timestamp jitter (KITTI's 10 Hz OXTS wanders by ~+-10 ms) neither skips nor doubles
+            # frames.
+            tol = min(0.25 * self.frame_dt, 0.5 * dt)
+            if self.t >= self._next_tick - tol:
+                while self._next_tick <= self.t + tol:
+                    self._next_tick += self.frame_dt
+                self._frame()
+        if fresh:
+            self.mode.after_imu(sample)
 
     def _frame(self) -> None:
         theta_start = self.pre.interval_heading
         inc = self.pre.take_increment()
         tick = Tick(self._nodes + 1, self.t, inc, self._interval_residual.take(), theta_start)
-        self._open_tick(tick)
+        self.mode.open_tick(tick)
         self._advance(tick, self.pre.x, self.pre.y)
         self._nodes += 1
-        self._history.append(tick)
-        self._close_tick(tick)
+        self.history.append(tick)
+        self.mode.close_tick(tick)
         if self.record:
             self._graph_x.append(tick.x[:3].copy())
             self._graph_inc.append((inc.d_fwd, inc.d_left, inc.d_theta))
-            self._graph_sigma.append(self._odometry_sigma(tick))
+            self._graph_sigma.append(self.mode.odometry_sigma(tick))
             self._record_track(self.t)
-        self._gnss_frame(tick)
+        self.gnss.on_frame(tick)
         self._maybe_trigger()
 
     def _advance(self, tick: Tick, pre_x: float, pre_y: float) -> None:
@@ -125,48 +148,20 @@ class Localiser(GnssFusion):
         d_div = math.hypot(self.ukf.x[0] - pre_x, self.ukf.x[1] - pre_y)
         em = self.p.error_model
         terms = error_terms(self._window, d_div, self.p.imu.gyro_arw, em.cross_k, em.along_k, em.divergence_k)
-        self._predict(tick, terms)
+        self.mode.predict(tick, terms)
         self.ukf.update_heading(inc.theta_end, self.p.ukf.compass_sigma_rad)
-        self._after_heading(tick)
+        self.mode.after_heading(tick)
         if tick.fix is not None:
             self.ukf.update_position(*tick.fix)
         if tick.fix_heading is not None:
             self.ukf.update_true_heading(*tick.fix_heading)
-        self._terms = terms
+        self.terms = terms
         tick.terms, tick.window, tick.pre_xy = terms, self._window, (pre_x, pre_y)
         tick.x, tick.P = self.ukf.get_state()
         if tick.gnss:
-            self._gnss_replay(tick)
+            self.gnss.replay(tick)
 
-    def _process_sigmas(self, epsilon: float) -> tuple[float, float]:
-        """The paper's per-frame process noise (sigma_fwd, sigma_lat), metres, for the composite error epsilon (m,
-        Sec. III-F)."""
-        u = self.p.ukf
-        return process_sigmas(epsilon, u.sigma_fwd_min_m, u.sigma_fwd_k, u.sigma_lat_min_m, u.sigma_lat_k)
-
-    def _predict(self, tick: Tick, terms: ErrorTerms) -> None:
-        """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
-        inc = tick.inc
-        s_f, s_l = self._process_sigmas(terms.epsilon)
-        Q = process_noise(float(self.ukf.x[2]), s_f, s_l, self.p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
-        self.ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
-
-    def _odometry_sigma(self, tick: Tick) -> float:
-        """The smoother's isotropic odometry sigma for this frame, metres: 1/2 (sigma_fwd + sigma_lat) of the
-        paper's process noise (Sec. III-G uses the filter's own noise)."""
-        s_f, s_l = self._process_sigmas(tick.terms.epsilon)
-        return 0.5 * (s_f + s_l)
-
-    def _after_heading(self, tick: Tick) -> None:
-        """Hook for measurement updates after the compass (taco+: zero-velocity update); none in paper mode."""
-
-    def _open_tick(self, tick: Tick) -> None:
-        """Hook before a new frame is advanced (taco+: stationary flag); none in paper mode."""
-
-    def _close_tick(self, tick: Tick) -> None:
-        """Hook after a new frame joined the history (taco+: speed-error feedback); none in paper mode."""
-
-    # ------------------------------------------------------------------ trigger and search
+    # ------------------------------------------------------------------ trigger
     def _maybe_trigger(self) -> None:
         if self._pending is not None:
             if self.t - self._pending.issued_t < self.p.trigger.query_timeout_s:
@@ -174,24 +169,14 @@ class Localiser(GnssFusion):
             self._pending = None  # unanswered: drop it so the pipeline can ask again
         if self._ready is not None:
             return
-        plan = self._gnss_plan(self._plan_search())
+        plan = self.gnss.plan(self.mode.plan_search())
         if plan is None:
             return
         reason, bias, offsets = plan
         theta = float(self.pre.theta)
         centre, crops = search_centres(self.ukf.fix_prediction()[0], theta, bias, offsets)  # in the map
         self._query_id += 1
-        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, self._terms.epsilon, reason)
-
-    def _plan_search(self) -> tuple[str, float, np.ndarray] | None:
-        """The paper's dual trigger and search (Sec. III-D): (reason, forward bias m, body offsets (K, 2) m),
-        or None when no fix is due."""
-        eps, tr = self._terms.epsilon, self.p.trigger
-        reason = trigger_reason(eps, self.t - self._last_fix_t, tr.epsilon_m, tr.time_s)
-        if reason is None:
-            return None
-        bias = forward_bias(eps, tr.forward_bias_k, tr.forward_bias_cap_m) if tr.forward_bias else 0.0
-        return reason.value, bias, cross_offsets(cross_spacing(eps, tr.cross_k, tr.cross_cap_m), tr.multi_crop)
+        self._ready = FixQuery(self._query_id, self.t, centre, theta, offsets, crops, self.terms.epsilon, reason)
 
     def poll_query(self) -> FixQuery | None:
         """The query the trigger produced, once (None when there is none). At most one is in flight."""
@@ -214,43 +199,45 @@ class Localiser(GnssFusion):
         if self._pending is not None and self._pending.query.query_id == query_id:
             self._pending = None
 
-    # ------------------------------------------------------------------ fixes
+    @property
+    def query_in_flight(self) -> bool:
+        return self._pending is not None
+
+    # ------------------------------------------------------------------ answers
     def add_fix(self, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome:
         """Hand back the matcher's results for a query (same order as its crop centres; None for a crop that
-        could not be matched, e.g. off the map). The fix is applied at its capture time (rewind, update,
-        replay) unless params.latency.apply_on_arrival."""
-        q = self._take_pending(query_id, results)
-        if isinstance(q, FixOutcome):
-            return q
-        now = self.t
-        weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
-        k = best_candidate([r if r is not None else _NO_MATCH for r in results])
-        best = results[k]
-        assert best is not None
-        xy = fix_position(q.crop_centres[k], q.heading, best.t, self.p.camera_lever_fwd_left_m)
-        psi = yaw_residual(best.R)
-        if not (np.all(np.isfinite(xy)) and math.isfinite(psi) and math.isfinite(best.w) and best.w > 0):
-            return self._log(FixOutcome(query_id, False, "nonfinite", q.capture_t, now, k, weights=weights))
-        naive = self.p.latency.apply_on_arrival
-        self._last_fix_t = max(self._last_fix_t, now if naive else q.capture_t)
-        if self.p.gate.enabled and not passes_yaw_gate(best.R, self.p.gate.yaw_residual_max_rad):
-            return self._log(FixOutcome(query_id, False, "yaw_gate", q.capture_t, now, k, xy, psi, weights=weights))
-        s_f, s_l = self._fix_sigmas(best.w)
-        tick = self._capture_tick(q)
-        if tick is None and not naive:
-            return self._log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
-        nis = self._fuse(tick, xy, s_f, s_l)
-        return self._log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+        could not be matched, e.g. off the map). What an answer does is the mode's (paper: the best candidate
+        behind the yaw gate; taco+: consensus, gates and lock); it is applied at its capture time (rewind,
+        update, replay) unless params.latency.apply_on_arrival."""
+        return self.mode.add_fix(query_id, results)
 
-    def _fix_sigmas(self, w: float, anisotropic: bool | None = None) -> tuple[float, float]:
+    def take_pending(self, query_id: int, results: Sequence[MatchResult | None]) -> FixQuery | FixOutcome:
+        """The in-flight query these results answer, or the outcome when they answer none or hold nothing."""
+        pending = self._pending
+        if pending is None or pending.query.query_id != query_id:
+            return self.log(FixOutcome(query_id, False, "unknown_query", float("nan"), self.t))
+        self._pending = None
+        q = pending.query
+        if not any(r is not None for r in results):
+            self.last_fix_t = max(self.last_fix_t, self.t if self.p.latency.apply_on_arrival else q.capture_t)
+            return self.log(FixOutcome(query_id, False, "no_results", q.capture_t, self.t))
+        return q
+
+    def fix_sigmas(self, w: float, anisotropic: bool | None = None) -> tuple[float, float]:
         """Body-frame fix sigmas (forward, lateral), metres, from the match weight (Sec. III-F); anisotropic:
         None for ukf.anisotropic, False for both the mean of the two."""
         u = self.p.ukf
         return fix_sigmas(w, u.fix_fwd_num, u.fix_fwd_min_m, u.fix_fwd_max_m, u.fix_lat_num, u.fix_lat_min_m,
                           u.fix_lat_max_m, u.anisotropic if anisotropic is None else anisotropic)
 
-    def _fuse(self, tick: Tick | None, xy: np.ndarray, s_f: float, s_l: float,
-              heading: tuple[float, float] | None = None) -> float:
+    def capture_tick(self, q: FixQuery) -> Tick | None:
+        """The history frame a fix for `q` applies at: the latest (on arrival) or the capture frame."""
+        if self.p.latency.apply_on_arrival:
+            return self.history[-1] if self.history else None
+        return next((h for h in self.history if abs(h.t - q.capture_t) < 1e-6), None)
+
+    def fuse(self, tick: Tick | None, xy: np.ndarray, s_f: float, s_l: float,
+             heading: tuple[float, float] | None = None) -> float:
         """Apply a fix (ENU m, body sigmas m; taco+: with the true heading it measures, (ENU rad, 1-sigma rad)) on
         arrival or at its capture frame `tick` (then required), record it for the smoother; returns the NIS."""
         if self.p.latency.apply_on_arrival:
@@ -261,24 +248,6 @@ class Localiser(GnssFusion):
         if self.record and tick is not None:
             self._graph_fixes[tick.node] = FixNode(tick.node, xy.copy(), s_f, s_l)
         return nis
-
-    def _take_pending(self, query_id: int, results: Sequence[MatchResult | None]) -> FixQuery | FixOutcome:
-        """The in-flight query these results answer, or the outcome when they answer none or hold nothing."""
-        pending = self._pending
-        if pending is None or pending.query.query_id != query_id:
-            return self._log(FixOutcome(query_id, False, "unknown_query", float("nan"), self.t))
-        self._pending = None
-        q = pending.query
-        if not any(r is not None for r in results):
-            self._last_fix_t = max(self._last_fix_t, self.t if self.p.latency.apply_on_arrival else q.capture_t)
-            return self._log(FixOutcome(query_id, False, "no_results", q.capture_t, self.t))
-        return q
-
-    def _capture_tick(self, q: FixQuery) -> Tick | None:
-        """The history frame a fix for `q` applies at: the latest (on arrival) or the capture frame."""
-        if self.p.latency.apply_on_arrival:
-            return self._history[-1] if self._history else None
-        return next((h for h in self._history if abs(h.t - q.capture_t) < 1e-6), None)
 
     def _apply_now(self, xy: np.ndarray, s_f: float, s_l: float, tick: Tick | None,
                    heading: tuple[float, float] | None = None) -> float:
@@ -309,7 +278,7 @@ class Localiser(GnssFusion):
         self._reset_anchor()  # the replay below re-extends the window and recomputes the terms
         pre_x, pre_y = float(tick.x[0]), float(tick.x[1])
         tick.window, tick.pre_xy = self._window, (pre_x, pre_y)
-        later = [h for h in self._history if h.t > tick.t]
+        later = [h for h in self.history if h.t > tick.t]
         pre_x, pre_y = self._replay(later, pre_x, pre_y)
         dx, dy = self.pre.interval_displacement
         self.pre.reset_position(pre_x + dx, pre_y + dy)
@@ -317,6 +286,27 @@ class Localiser(GnssFusion):
             for h in [tick, *later]:
                 self._graph_x[h.node] = h.x[:3].copy()
         return nis
+
+    def replay_after(self, base: Tick) -> None:
+        """Replay the frames after `base` from the filter's current state (which is base's), as `_apply_at` does
+        after a late fix: their stored camera fixes and GNSS are applied again (a GNSS batch, a rollback)."""
+        self._reset_anchor()
+        pre_x, pre_y = float(self.ukf.x[0]), float(self.ukf.x[1])
+        base.window, base.pre_xy = self._window, (pre_x, pre_y)
+        later = [h for h in self.history if h.t > base.t]
+        self._replay(later, pre_x, pre_y)
+        dx, dy = self.pre.interval_displacement
+        self.pre.reset_position(float(self.ukf.x[0]) + dx, float(self.ukf.x[1]) + dy)
+        if self.record:
+            for h in [base, *later]:
+                self._graph_x[h.node] = h.x[:3].copy()
+
+    def settle(self, tick: Tick) -> None:
+        """After measurement updates at `tick` outside a frame's advance (GNSS): store the state on it and reset
+        the anchor window there, as a fix does."""
+        tick.x, tick.P = self.ukf.get_state()
+        self._reset_anchor()
+        tick.window = self._window
 
     def _replay(self, later: list[Tick], pre_x: float, pre_y: float) -> tuple[float, float]:
         """Advance the history frames `later` again from the filter's current state, the dead-reckoned
@@ -330,46 +320,77 @@ class Localiser(GnssFusion):
 
     def _reset_anchor(self) -> None:
         self._window = AnchorWindow()
-        self._terms = ErrorTerms(0.0, 0.0, 0.0)
+        self.terms = ErrorTerms(0.0, 0.0, 0.0)
 
-    def _log(self, outcome: FixOutcome) -> FixOutcome:
+    def log(self, outcome: FixOutcome) -> FixOutcome:
+        """Record what became of an answer (offline) and let the GNSS guard cross-check it; returns it."""
         if self.record:
             self.outcomes.append(outcome)
-        self._gnss_fix_outcome(outcome)
+        self.gnss.on_fix_outcome(outcome)
         return outcome
 
-    # ------------------------------------------------------------------ taco+'s inputs (paper mode: none)
-    # Both modes answer the same calls, so the daemon and the evaluator never ask which one they hold.
-    takes_ground_motion = False  # add_ground_motion is used (taco+: a speed measurement)
+    # ------------------------------------------------------------------ other inputs
+    @property
+    def takes_ground_motion(self) -> bool:
+        """Whether `add_ground_motion` is used (taco+: a speed measurement); the daemon skips the work if not."""
+        return self.mode.takes_ground_motion
 
     def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
         """The camera's ground-plane motion between t0 and t1 (autopilot s; metres in frame 0's body axes) as a
-        speed measurement (taco+); paper mode has no speed state and ignores it."""
-        return "ignored"
-
-    @property
-    def lock_events(self) -> list[tuple[float, str, str]]:
-        """(t, kind, detail) of every lock event (taco+); paper mode keeps no lock."""
-        return []
+        speed measurement (taco+; see plus/camera_speed.py); paper mode has no speed state: "ignored"."""
+        return self.mode.add_ground_motion(t0, t1, d_fwd, d_left, sigma_m)
 
     def set_drive_command(self, t: float, driving: bool) -> None:
         """Whether the autopilot drives at autopilot time t (s): taco+ vetoes its zero-velocity updates while it
-        does (`PlusLocaliser`); paper mode has none and ignores it."""
+        does; paper mode ignores it."""
+        self.mode.set_drive_command(t, driving)
+
+    def add_gnss(self, fix: GnssFix) -> GnssOutcome:
+        """One real GNSS reading (see gnss/fusion.py); taco+ also checks its ground speed against the camera's."""
+        out = self.gnss.add(fix)
+        self.mode.after_gnss(fix, out)
+        return out
+
+    @property
+    def gnss_state(self) -> str:
+        """"none" (no reading yet), "ok" (in use) or "rejected" (held off by the guard)."""
+        return self.gnss.state
+
+    @property
+    def gnss_in_use(self) -> bool:
+        """A reading accepted within the guard's gap_s of now."""
+        return self.gnss.in_use
+
+    def take_gnss_events(self) -> list[tuple[float, str, str]]:
+        """(t, kind, detail) of "gnss_rejected" / "gnss_accepted" since the last call (detail: the figures)."""
+        return self.gnss.take_events()
+
+    @property
+    def lock_events(self) -> list[tuple[float, str, str]]:
+        """(t, kind, detail) of every lock event (taco+: lock_lost / relocalised / relock_failed / recovered ...);
+        paper mode keeps no lock."""
+        return self.mode.lock_events()
 
     def take_lock_events(self) -> list[tuple[float, str, str]]:
-        """Loss-of-lock events not yet taken, (t s, kind, detail) each (taco+); paper mode keeps no lock."""
-        return []
+        """Lock events not yet taken, (t s, kind, detail) each (the daemon logs each once)."""
+        return self.mode.take_lock_events()
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
-        """The current estimate: UKF position and heading at the last frame plus the displacement and turn
-        integrated since. The heading is the filter's (taco+: the compass less its learnt bias), not the raw
-        compass: on an autopilot that fuses our velocity, its direction must not echo the autopilot's own yaw."""
+        """The current estimate: the filter's (`filter_estimate`) with the mode's reported accuracy (taco+: the
+        fixes' variance factor, floors) and its state in `extra`."""
+        return self.mode.estimate(self.filter_estimate())
+
+    def filter_estimate(self) -> Estimate:
+        """The filter's own estimate: UKF position and heading at the last frame plus the displacement and turn
+        integrated since, with the UKF's position covariance. The heading is the filter's (taco+: the compass less
+        its learnt bias), not the raw compass: on an autopilot that fuses our velocity, its direction must not echo
+        the autopilot's own yaw."""
         dx, dy = self.pre.interval_displacement
         x = self.ukf.x
         theta = wrap_angle(float(x[2]) + wrap_angle(self.pre.theta - self.pre.interval_heading))
         return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), theta, float(self.pre.speed),
-                        self.ukf.P[:2, :2].copy(), self._terms.epsilon, self.t - self._last_fix_t)
+                        self.ukf.P[:2, :2].copy(), self.terms.epsilon, self.t - self.last_fix_t)
 
     @property
     def filter_sigma_h(self) -> float:
@@ -378,9 +399,11 @@ class Localiser(GnssFusion):
         from."""
         return horizontal_sigma(self.ukf.P[:2, :2])
 
-    @property
-    def query_in_flight(self) -> bool:
-        return self._pending is not None
+    def widen(self, s: float) -> None:
+        """Add s^2 (m^2) to both position variances."""
+        x, P = self.ukf.get_state()
+        P[:2, :2] += s * s * np.eye(2)
+        self.ukf.set_state(x, P)
 
     def _record_track(self, t: float) -> None:
         x, P = self.ukf.x, self.ukf.P
@@ -393,3 +416,9 @@ class Localiser(GnssFusion):
         inc = np.array(self._graph_inc).reshape(-1, 3)
         fixes = [self._graph_fixes[k] for k in sorted(self._graph_fixes)]
         return smooth(np.array(self._graph_x), inc, np.array(self._graph_sigma), fixes, self.p.smoother)
+
+
+def make_localiser(params: LocaliserParams, t0: float, x: float = 0.0, y: float = 0.0, heading: float = 0.0,
+                   speed: float = 0.0, record: bool = True, heading_offset: float = 0.0) -> Localiser:
+    """The Localiser for the estimator mode in `params` (paper when params.plus is None, else taco+)."""
+    return Localiser(params, t0, x, y, heading, speed, record=record, heading_offset=heading_offset)

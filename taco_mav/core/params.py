@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 from taco_mav.core.fields import bounded
-from taco_mav.core.gnss_params import GnssParams
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.gnss.params import GnssParams
+from taco_mav.core.plus.params import PlusParams
 
 __all__ = ["ErrorModelParams", "GateParams", "ImuParams", "LatencyParams", "LocaliserParams", "SmootherParams",
            "TriggerParams", "UkfParams"]

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 from taco_mav.core.localiser import Localiser
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.types import GnssFix
 from taco_mav.daemon.gnss import START_NEAR_M, moved_from_origin

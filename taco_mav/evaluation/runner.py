@@ -17,7 +17,7 @@ import numpy as np
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import Profile, localiser_params
 from taco_mav.core.frames import FixOutcome
-from taco_mav.core.localiser_plus import make_localiser
+from taco_mav.core.localiser import make_localiser
 from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery

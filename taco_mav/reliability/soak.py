@@ -88,7 +88,7 @@ def structure_sizes(daemon: Any, before: frozenset[int] = frozenset()) -> dict[s
         dq = fx.service.stats.per_trigger_s
         out["service.per_trigger_s"] = (len(dq), getattr(dq, "maxlen", None))
     if daemon.loc is not None:
-        h = daemon.loc._history
+        h = daemon.loc.history
         out["localiser.history"] = (len(h), h.maxlen)
         out["localiser.track"] = (len(daemon.loc.track), 1)  # record=False keeps only the start pose
     out["fixes.results_queue"] = (fx._results.qsize(), None)

@@ -1,7 +1,7 @@
 """taco+'s use of the camera's speed (issue 19): the ground-plane motion between two frames
-(`cvgl.ground_motion`, measured by the daemon's `link.motion`) as a measurement of the speed error, and the
-receiver's ground speed checked against it (`speed_check`, issue 14). A mixin of `PlusLocaliser`: it uses the
-filter's state (`ukf`, `pre`, `_history`, `q`) and the GNSS guard of `GnssFusion`.
+(`cvgl.ground_motion`, measured by the daemon's motion loop) as a measurement of the speed error, and the
+receiver's ground speed checked against it (`speed_check`, issue 14). A part of `PlusMode`, acting on the filter
+of the Localiser it serves.
 
 Speeds m/s, distances metres, times autopilot seconds.
 """
@@ -9,30 +9,29 @@ Speeds m/s, distances metres, times autopilot seconds.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
+from taco_mav.core.frames import Tick
+from taco_mav.core.host import Host
+from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.plus.safety_guard import SafetyGuard
+from taco_mav.core.plus.speed_check import SpeedCheck
+from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.types import GnssFix, GnssOutcome
 
 
-class CameraSpeedMixin:
-    """add_ground_motion / add_gnss for PlusLocaliser (which initialises the attributes used here)."""
+class CameraSpeed:
+    """The camera's speed for the Localiser `host`: `feedback` moves the speed error into the preintegrator
+    (PlusMode.feedback); stops (`zero`) and the safety guard (`guard`) hear what the camera saw."""
 
-    q: Any
-    ukf: Any
-    pre: Any
-    unaided: Any
-    gnss_guard: Any
-    speed_check: Any
-    frame_dt: float
-    _history: Any
-    _camera_moving_until: float
-    _camera_gated: int
-    _camera_suspect: bool
-    _camera_agree: int
-    _distrust_zupt: Any  # SafetyGuardMixin
-    _speed_variance_at_least: Any
+    def __init__(self, host: Host, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
+                 feedback: Callable[[Tick], None]) -> None:
+        self.host, self.q, self.zero, self.guard, self._feedback = host, q, zero, guard, feedback
+        self.speed_check = SpeedCheck()  # GNSS ground speed against the camera's (spoofing, speed_check.py)
+        self._gated = 0  # camera speed measurements held off in a row
+        self._suspect, self._agree = False, 0  # camera locked onto something else
 
-    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
+    def add(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
         """The camera's ground-plane translation between its frames at t0 and t1 (autopilot s), in frame 0's
         body axes (metres, 1-sigma metres), as a speed measurement of the speed error x[3] at the middle of the
         interval (the speed error is taken as unchanged since). Motion vetoes zero-velocity updates for a
@@ -55,40 +54,40 @@ class CameraSpeedMixin:
         v_cam = d_fwd / dt
         self._check_gnss_speed(0.5 * (t0 + t1), v_cam, math.sqrt(2.0) * sigma_m / dt)
         if abs(v_cam) >= self.q.zupt_speed_max_mps:
-            self._camera_moving_until = max(self._camera_moving_until, t1 + 1.0)
+            self.zero.camera_moving(t1 + 1.0)
         v_est = self._speed_at(0.5 * (t0 + t1))
         if v_est is None:
             return "stale"
         var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
         z = v_cam - v_est
-        P33 = float(self.ukf.P[3, 3])
-        if self._camera_suspect:  # locked onto something else: used again once it agrees twice on its own noise
+        P33 = float(self.host.ukf.P[3, 3])
+        if self._suspect:  # locked onto something else: used again once it agrees twice on its own noise
             if z * z > 10.83 * var and not self._camera_sides_with_imu(v_cam, v_est):
-                self._camera_agree = 0
+                self._agree = 0
                 return "suspect"
-            self._camera_agree += 1
-            if self._camera_agree < 2:
+            self._agree += 1
+            if self._agree < 2:
                 return "suspect"
-            self._camera_suspect = False
+            self._suspect = False
         if z * z > 10.83 * (P33 + var):
-            self._camera_gated += 1
-            if self._camera_gated >= 3:
+            self._gated += 1
+            if self._gated >= 3:
                 if self._camera_sides_with_imu(v_cam, v_est):
-                    self._distrust_zupt()
-                    self._speed_variance_at_least(z * z)
+                    self.guard.distrust_zupt()
+                    self.guard.speed_variance_at_least(z * z)
                 else:  # the camera is the one that is wrong: hold it off until it agrees again
-                    self._camera_suspect, self._camera_agree = True, 0
+                    self._suspect, self._agree = True, 0
             return "gated"
-        self._camera_gated = 0
-        before = self.ukf.x[:2].copy()
-        self.ukf.update_speed_error(float(self.ukf.x[3]) + z, math.sqrt(var))
-        if self.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
-            self.unaided.x += float(self.ukf.x[0] - before[0])
-            self.unaided.y += float(self.ukf.x[1] - before[1])
-        if self._history:  # a rewind to the last frame (a late fix) starts from the updated state
-            self._history[-1].x, self._history[-1].P = self.ukf.get_state()
-            self._feedback(self._history[-1])
-        self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+        self._gated = 0
+        before = self.host.ukf.x[:2].copy()
+        self.host.ukf.update_speed_error(float(self.host.ukf.x[3]) + z, math.sqrt(var))
+        if self.guard.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
+            self.guard.unaided.x += float(self.host.ukf.x[0] - before[0])
+            self.guard.unaided.y += float(self.host.ukf.x[1] - before[1])
+        if self.host.history:  # a rewind to the last frame (a late fix) starts from the updated state
+            self.host.history[-1].x, self.host.history[-1].P = self.host.ukf.get_state()
+            self._feedback(self.host.history[-1])
+        self.zero.seen(math.sqrt(max(float(self.host.ukf.P[3, 3]), 0.0)))
         return "used"
 
     def _camera_sides_with_imu(self, v_cam: float, v_est: float) -> bool:
@@ -97,23 +96,21 @@ class CameraSpeedMixin:
         for a cruise or the reverse) and its speed variance is raised so the camera can correct it. Otherwise the
         camera is the one that is wrong (a lead car, a repeating road marking locked onto) and stays gated.
         Without an unaided track, the camera is given the benefit of the doubt."""
-        if not self.unaided.started:
+        if not self.guard.unaided.started:
             return True
-        v_imu = float(self.unaided.v)
+        v_imu = float(self.guard.unaided.v)
         return abs(v_cam - v_imu) < abs(v_est - v_imu)
 
-    def add_gnss(self, fix: GnssFix) -> GnssOutcome:
-        """As GnssFusion.add_gnss; the reading's ground speed also goes to the camera-speed check."""
-        out = super().add_gnss(fix)
+    def after_gnss(self, fix: GnssFix, out: GnssOutcome) -> None:
+        """A GNSS reading went through the fusion: its ground speed also goes to the camera-speed check."""
         v = fix.vel_en
         if v is not None and out.reason != "nonfinite":
             self.speed_check.add_gnss(fix.t, float(math.hypot(v[0], v[1])), float(fix.sigma_v_mps))
-        return out
 
     def _check_gnss_speed(self, t: float, v_cam: float, sigma_white: float) -> None:
         """The camera's speed against the receiver's (speed_check.py); a receiver whose speed departs from the
         camera's is flagged to the GNSS guard (rejected at its next reading, held off while it disagrees)."""
-        g = self.gnss_guard
+        g = self.host.gnss.guard
         if g is None:
             return
         trusted = g.healthy_at(t) and not g.suspect
@@ -124,12 +121,12 @@ class CameraSpeedMixin:
     def _speed_at(self, t: float) -> float | None:
         """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
         before the history."""
-        h = self._history
-        if not h or t < h[0].t - self.frame_dt:
+        h = self.host.history
+        if not h or t < h[0].t - self.host.frame_dt:
             return None
         speeds = [(k.t, k.inc.speed_end + k.dv_fed) for k in h]
         if t >= speeds[-1][0]:
-            return float(self.pre.speed)
+            return float(self.host.pre.speed)
         for (ta, va), (tb, vb) in zip(speeds, speeds[1:]):
             if ta <= t <= tb:
                 return va + (vb - va) * (t - ta) / max(tb - ta, 1e-9)

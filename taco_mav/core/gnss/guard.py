@@ -37,8 +37,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
-from taco_mav.core.gnss_params import GnssParams
-from taco_mav.core.gnss_shadow import Anchor, DrSnap, dr_displacement, interpolate, shadow, shadow_velocity
+from taco_mav.core.gnss.params import GnssParams
+from taco_mav.core.gnss.shadow import Anchor, DrSnap, dr_displacement, interpolate, shadow, shadow_velocity
 
 _RECENT_S = 10.0  # readings kept for camera fixes answered this late
 

@@ -1,41 +1,58 @@
 """taco+'s bookkeeping of answers that were not simply applied (issues 7, 17, 19): answers held until a second one
 agrees (a jump the IMU track does not allow, a recovery candidate), failed triggers (loss of lock, the widened
 uncertainty, rejections that agree and so widen the reported accuracy) and the settling of lock after an
-applied fix. A mixin of `PlusLocaliser`, which initialises the attributes used here.
+applied fix. A part of `PlusMode`, acting on the filter of the Localiser it serves.
 
-World frame ENU metres, times autopilot seconds; a correction is z - x (the fix minus the estimate).
+World frame ENU metres, times autopilot seconds; a correction is z - x (the fix minus the estimate); odometer
+readings (odo) metres driven since the start.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from typing import Any
 
 import numpy as np
 
-from taco_mav.core.lock import LockState
+from taco_mav.core.host import Host
+from taco_mav.core.plus.lock import LockMonitor, LockState
+from taco_mav.core.plus.noise import VarianceFactor
+from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.plus.safety_guard import SafetyGuard
+
+# a held answer: (the correction z - x at capture (ENU m), arrival t of the latest agreeing answer, odometer then,
+# answers that agreed so far, the integral of the unit heading vector at capture (s, ENU; confirm_speed_error_mps))
+Held = tuple[np.ndarray, float, float, int, "tuple[float, float] | None"]
 
 
-class AnswerHoldMixin:
-    """Held answers, failures and lock settling for PlusLocaliser."""
+class AnswerHold:
+    """Held answers, failures and lock settling for the Localiser `host`, with its `lock`, the reported accuracy's
+    `report_factor` and the safety `guard`."""
 
-    q: Any
-    t: float
-    ukf: Any
-    lock: Any
-    report_factor: Any
-    _held: list
-    _odo: float
-    _misses_in_row: int
-    _last_answer_weak: bool
-    _gate_misses: int
-    _gate_innovs: list
-    _report_floor_m: float
-    _floor_m: float
+    def __init__(self, host: Host, q: PlusParams, lock: LockMonitor, report_factor: VarianceFactor,
+                 guard: SafetyGuard) -> None:
+        self.host, self.q, self.lock, self.report_factor, self.guard = host, q, lock, report_factor, guard
+        self.held: list[Held] = []  # newest last (jump_confirm_k, recover_confirm)
+        self.misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
+        self.last_answer_weak = False  # the last answer had nothing usable (plus.trigger_retry_s asks sooner)
+        self.report_floor_m = 0.0  # 1-sigma floor on the reported (not the filter's) position accuracy, m
+        self._gate_misses = 0  # consecutive innovation-gate rejections (of at least plus.guard_w_min)
+        self._gate_innovs: list[tuple[np.ndarray, float]] = []  # ... their z - x (ENU m) and odometer (m)
+        self._floor_m = 0.0  # relocalisation jump kept in P until confirmed, metres (1-sigma)
 
-    def _hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float,
-              latency_s: float = 0.0, track_unit: tuple[float, float] | None = None) -> str | None:
+    def inflate(self, sigma_m: float) -> None:
+        """Lock lost: widen the position uncertainty by at least lost_sigma_min_m (and sigma_m), metres."""
+        self.host.widen(max(self.q.lost_sigma_min_m, sigma_m))
+
+    def accepted(self) -> None:
+        """A fix was applied: the runs of failures and the reported floor start again."""
+        self._gate_misses = self.misses_in_row = 0
+        self.last_answer_weak = False
+        self._gate_innovs = []
+        self.report_floor_m = 0.0
+
+    def hold(self, state: LockState, innov: np.ndarray, jump: float, P: np.ndarray, t: float, odo: float,
+             latency_s: float = 0.0, track_unit: tuple[float, float] | None = None) -> str | None:
         """Whether an answer that passed the weight, yaw and chi-square gates must be confirmed first: None (no:
         apply it), "hold" (kept, not applied) or "confirmed" (it is the confirm_answers-th (lost) or
         jump_confirm_answers-th (not lost; 0: never) answer implying the same correction z - x, to within
@@ -59,26 +76,26 @@ class AnswerHoldMixin:
             if jump <= q.jump_confirm_k * math.sqrt(lam + q.jump_confirm_floor_m**2):
                 return None
         window = max(q.confirm_window_s, 3.0 * max(latency_s, 0.0))
-        held = [h for h in self._held if t - h[1] <= window]
-        near = [(self._disagreement(innov, self._odo, h[0], h[2]), i) for i, h in enumerate(held)]
+        held = [h for h in self.held if t - h[1] <= window]
+        near = [(self._disagreement(innov, odo, h[0], h[2]), i) for i, h in enumerate(held)]
         near = [(d, i) for d, i in near if d <= q.confirm_agree_m]
         need = q.confirm_answers if state is LockState.LOST else q.jump_confirm_answers
         if need > 0 and self._explained_by_speed(held, innov, track_unit, need):
-            self._held = []
+            self.held = []
             return "confirmed"
         if near:
             i = min(near)[1]
             n = held[i][3] + 1
             if need > 0 and n >= need:
-                self._held = []
+                self.held = []
                 return "confirmed"
             del held[i]
         else:
             n = 1
-        self._held = (held + [(np.array(innov, dtype=float), t, self._odo, n, track_unit)])[-q.confirm_keep:]
+        self.held = (held + [(np.array(innov, dtype=float), t, odo, n, track_unit)])[-q.confirm_keep:]
         return "hold"
 
-    def _explained_by_speed(self, held: list, innov: np.ndarray, track_unit: tuple[float, float] | None,
+    def _explained_by_speed(self, held: list[Held], innov: np.ndarray, track_unit: tuple[float, float] | None,
                             need: int) -> bool:
         """Whether this answer and need - 1 held ones imply corrections c_i = z - x (ENU m) that one offset e and
         one speed error s (m/s, |s| <= confirm_speed_error_mps) explain as c_i = e + s a_i, each within
@@ -101,72 +118,72 @@ class AnswerHoldMixin:
                 return True
         return False
 
-    def _failed(self, reason: str, innovation_m: float, innov: np.ndarray | None = None) -> None:
+    def failed(self, reason: str, innovation_m: float, odo: float, innov: np.ndarray | None = None) -> None:
         """An answered trigger without a fix: lock bookkeeping; the uncertainty widens when lock is declared
         lost (half the disagreement, at least lost_sigma_min_m) and by half a grid spacing per failed
         recovery attempt. With the safety guard, `guard_gate_misses` failures in a row (off-map answers
-        aside) also make a zero-velocity update since the last fix suspect (`_distrust_zupt`), and innovation-gate
-        rejections in a row keep the *reported* accuracy at half their disagreement until a fix is accepted,
-        while the gate keeps the filter's own P (a silent outlier stays out), when they agree with each other
+        aside) also make a zero-velocity update since the last fix suspect (`SafetyGuard.distrust_zupt`), and
+        innovation-gate rejections in a row keep the *reported* accuracy at half their disagreement until a fix is
+        accepted, while the gate keeps the filter's own P (a silent outlier stays out), when they agree with each other
         (the corrections z - x they imply within confirm_agree_m plus confirm_agree_per_m of the distance driven
         between them, as held answers): the camera then keeps saying the estimate is elsewhere. Rejected answers
         that scatter are the matcher's chance peaks (a 3-D street), not evidence against the estimate.
         innov: the rejected answer's z - x (ENU m), for that comparison; None for one too weak to count
         (plus.guard_w_min), which breaks the run."""
         was_lost = self.lock.state is LockState.LOST
-        self._last_answer_weak = reason == "weak"  # nothing the matcher could place: worth asking again soon
+        self.last_answer_weak = reason == "weak"  # nothing the matcher could place: worth asking again soon
         if reason != "no_results":
-            self._misses_in_row += 1
+            self.misses_in_row += 1
         counts = reason == "innovation_gate" and innov is not None
         self._gate_misses = self._gate_misses + 1 if counts else 0
         if counts:
-            self._gate_innovs = (self._gate_innovs + [(np.array(innov, dtype=float), self._odo)])[-self.q.guard_gate_misses:]
+            self._gate_innovs = (self._gate_innovs + [(np.array(innov, dtype=float), odo)])[-self.q.guard_gate_misses:]
         else:
             self._gate_innovs = []
-        if self.lock.on_failure(self.t, reason):
-            self._inflate(0.5 * innovation_m)
+        if self.lock.on_failure(self.host.t, reason):
+            self.inflate(0.5 * innovation_m)
         elif was_lost:
-            self._widen(0.5 * self.q.grid_spacing_m)
+            self.host.widen(0.5 * self.q.grid_spacing_m)
         elif self.q.guard and self._gate_misses >= self.q.guard_gate_misses and self._gate_misses_agree():
-            self._report_floor_m = max(self._report_floor_m, 0.5 * innovation_m)
-            self.lock.note(self.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
+            self.report_floor_m = max(self.report_floor_m, 0.5 * innovation_m)
+            self.lock.note(self.host.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
                            "away: accuracy widened")
-        if self.q.guard and self._misses_in_row >= self.q.guard_gate_misses:
-            self._distrust_zupt()
+        if self.q.guard and self.misses_in_row >= self.q.guard_gate_misses:
+            self.guard.distrust_zupt()
 
     def _disagreement(self, innov_a: np.ndarray, odo_a: float, innov_b: np.ndarray, odo_b: float) -> float:
         """How far two answers' corrections z - x (ENU m) differ beyond what the IMU may drift between them
         (confirm_agree_per_m of the distance driven, odometer readings odo_a / odo_b m); they agree when this is
-        at most confirm_agree_m (held answers, `_hold`; rejected ones, `_gate_misses_agree`)."""
+        at most confirm_agree_m (held answers, `hold`; rejected ones, `_gate_misses_agree`)."""
         return float(np.linalg.norm(innov_a - innov_b)) - self.q.confirm_agree_per_m * abs(odo_a - odo_b)
 
     def _gate_misses_agree(self) -> bool:
-        """Whether the last guard_gate_misses innovation-gate rejections imply the same correction (`_failed`)."""
+        """Whether the last guard_gate_misses innovation-gate rejections imply the same correction (`failed`)."""
         kept = self._gate_innovs
         return all(self._disagreement(a[0], a[1], b[0], b[1]) <= self.q.confirm_agree_m
                    for i, a in enumerate(kept) for b in kept[i + 1:])
 
-    def _settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:
+    def settle_lock(self, state: LockState, jump: float, s_f: float, s_l: float) -> None:
         """Lock bookkeeping after an applied fix. A relocalisation (from LOST) keeps half its jump as a
         1-sigma floor on the position uncertainty until `confirm_fixes` later fixes agree with it to within
         3 fix sigmas; a confirming fix that disagrees restarts the count and keeps the larger floor."""
         if state is LockState.LOST:
-            self.lock.on_relocalised(self.t, jump)
+            self.lock.on_relocalised(self.host.t, jump)
             self._floor_m = 0.5 * jump
             self.report_factor.reset()  # what the fixes said of the old lock says nothing of the new one
         elif state is LockState.CONFIRMING:
             if jump <= 3.0 * max(s_f, s_l):
-                self.lock.on_accepted(self.t)
+                self.lock.on_accepted(self.host.t)
             else:
                 self.lock.confirmations = 0
                 self._floor_m = max(self._floor_m, 0.5 * jump)
         else:
-            self.lock.on_accepted(self.t)
+            self.lock.on_accepted(self.host.t)
         if self.lock.state is LockState.LOCKED:
             self._floor_m = 0.0
         elif self._floor_m > 0.0:
-            x, P = self.ukf.get_state()
+            x, P = self.host.ukf.get_state()
             lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
             if lo < self._floor_m**2:
                 P[:2, :2] += (self._floor_m**2 - lo) * np.eye(2)
-                self.ukf.set_state(x, P)
+                self.host.ukf.set_state(x, P)

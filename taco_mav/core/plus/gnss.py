@@ -1,6 +1,6 @@
-"""taco+'s use of a real GNSS (issue 14; the measurement and its checks are `gnss_fusion.py`): a Kalman update of
-position, speed and course on the taco+ state, instead of the paper mode's re-anchoring. A mixin of
-`PlusLocaliser`, which owns the filter and the history the updates and replays act on.
+"""taco+'s use of a real GNSS (issue 14; the measurement and its checks are `gnss/fusion.py`): a Kalman update of
+position, speed and course on the taco+ state, instead of the paper mode's re-anchoring. A part of `PlusMode`;
+the GNSS fusion calls it through the mode's gnss_* hooks.
 
 World frame ENU metres, speeds m/s, angles radians (ENU, CCW).
 """
@@ -8,28 +8,30 @@ World frame ENU metres, speeds m/s, angles radians (ENU, CCW).
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
-from taco_mav.core.frames import GnssMeasurement
-from taco_mav.core.gnss_guard import receiver_variances
-from taco_mav.core.frames import Tick
+from taco_mav.core.frames import GnssMeasurement, Tick
+from taco_mav.core.gnss.guard import receiver_variances
+from taco_mav.core.host import Host
+from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.plus.safety_guard import SafetyGuard
+from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.ukf import joseph_update
 
 
-class GnssPlusMixin:
-    """Real-GNSS updates for PlusLocaliser."""
+class GnssUpdate:
+    """Real-GNSS updates on the taco+ filter of the Localiser `host`: `feedback` moves the speed error into the
+    preintegrator (PlusMode.feedback); a speed reading is a speed observation for stops (`zero`); the safety
+    `guard` restarts its IMU-only track after a batch."""
 
-    q: Any
-    p: Any
-    ukf: Any
-    _history: list
+    def __init__(self, host: Host, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
+                 feedback: Callable[[Tick], None]) -> None:
+        self.host, self.q, self.zero, self.guard, self._feedback = host, q, zero, guard, feedback
 
-    _gnss_replaces = False  # a Kalman update, not a re-anchoring
-
-    def _gnss_apply(self, tick: Tick, m: GnssMeasurement) -> None:
+    def apply(self, tick: Tick, m: GnssMeasurement) -> None:
         """Kalman update at `tick`: position (isotropic sigma_h) and, when the reading has a speed (above
         gnss.min_speed_mps), the speed error x[3] (the ground speed at the frame end against the preintegrated
         speed there, m/s) and the heading x[2] (the course; as the compass reads theta + beta this makes the
@@ -37,7 +39,7 @@ class GnssPlusMixin:
         bias share of sigma_h, see gnss_guard) stays in the position covariance as a floor: averaging readings
         does not remove it, and the reported accuracy, the camera gates and the hand-over to dead reckoning must
         know it."""
-        x, P = self.ukf.get_state()
+        x, P = self.host.ukf.get_state()
         rows, innov, var = [0, 1], [m.xy[0] - x[0], m.xy[1] - x[1]], [m.var_xy, m.var_xy]
         if m.speed is not None:
             rows.append(3)
@@ -51,31 +53,33 @@ class GnssPlusMixin:
         H[np.arange(len(rows)), rows] = 1.0
         x, P, _ = joseph_update(x, P, H, np.array(innov), np.diag(var))
         x[2] = wrap_angle(x[2])
-        floor = receiver_variances(math.sqrt(m.var_xy), self.p.gnss)[1]
+        floor = receiver_variances(math.sqrt(m.var_xy), self.host.p.gnss)[1]
         lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
         if lo < floor:
             P[:2, :2] += (floor - lo) * np.eye(2)
-        self.ukf.set_state(x, P)
+        self.host.ukf.set_state(x, P)
 
-    def _gnss_fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
+    def fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch of readings: feed the speed error back, as after an accepted fix."""
-        if self._history:
-            self._feedback(self._history[-1])
+        if self.host.history:
+            self._feedback(self.host.history[-1])
         if m.speed is not None:
-            self._speed_seen(math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)))
+            self.zero.seen(math.sqrt(max(float(self.host.ukf.P[3, 3]), 0.0)))
         if self.q.guard:
-            self._reset_unaided()
+            self.guard.reset()
 
-    def _gnss_anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+    def anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+        """(true-speed estimate m/s, accelerometer bias m/s^2, compass bias rad, their 1-sigmas with the
+        heading's) at tick's end, from the taco+ states."""
         x, P = tick.x, tick.P
         beta = float(x[5]) if len(x) > 5 else 0.0
         var_heading = float(P[5, 5]) if len(x) > 5 else float(P[2, 2])
         sig = tuple(math.sqrt(max(v, 0.0)) for v in (float(P[3, 3]), float(P[4, 4]), var_heading))
         return float(tick.inc.speed_end + tick.dv_fed + x[3]), float(x[4]), beta, sig
 
-    def _gnss_after_rollback(self, later: list[Tick]) -> None:
+    def after_rollback(self) -> None:
         """The replay left the undone speed corrections in the speed error: feed it back."""
-        if self._history:
-            self._feedback(self._history[-1])
+        if self.host.history:
+            self._feedback(self.host.history[-1])
         if self.q.guard:
-            self._reset_unaided()
+            self.guard.reset()

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from taco_mav.core.gnss_params import GnssParams
+from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.ukf import fix_covariance
 

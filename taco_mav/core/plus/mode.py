@@ -1,0 +1,367 @@
+"""taco+ (issue 7) as the Localiser's mode: the paper's heuristics replaced where they lose lock or overwrite the
+state. The pieces are parts this mode owns: the noise model and what the fixes teach (noise.py), the trigger and
+search (search.py), the lock state machine (lock.py), held answers and failures (answer_hold.py), stops
+(zero_velocity.py), the safety guard (safety_guard.py), the camera's speed (camera_speed.py) and the update by a
+real GNSS (gnss.py). The Localiser keeps the facade and the history replay for late fixes; paper mode
+(`paper.PaperMode`) is untouched.
+
+State: x, y (ENU m), theta (ENU rad), dv (speed error, m/s), b (forward accelerometer bias, m/s^2), optionally
+beta (compass bias, rad) and the map's offset (ENU m). After every frame the speed error is moved into the
+preintegrator (error-state feedback, `feedback`), so `estimate().speed` is the corrected speed; the amount is
+kept on the frame so a replay after a late fix subtracts it again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from taco_mav.core.error_model import ErrorTerms
+from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
+from taco_mav.core.gate import yaw_residual
+from taco_mav.core.host import Host
+from taco_mav.core.plus.answer_hold import AnswerHold
+from taco_mav.core.plus.camera_speed import CameraSpeed
+from taco_mav.core.plus.gnss import GnssUpdate
+from taco_mav.core.plus.lock import LockMonitor, LockState
+from taco_mav.core.plus.noise import (
+    FixNoiseScale,
+    VarianceFactor,
+    bias_decay,
+    n_states,
+    process_noise_plus,
+)
+from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.plus.safety_guard import SafetyGuard
+from taco_mav.core.plus.search import (
+    consensus,
+    cross_arm,
+    defer_answer,
+    grid_rings,
+    hex_offsets,
+)
+from taco_mav.core.plus.zero_velocity import ZeroVelocity
+from taco_mav.core.search import cross_offsets, fix_position
+from taco_mav.core.types import (
+    Estimate,
+    GnssFix,
+    GnssOutcome,
+    ImuSample,
+    MatchResult,
+    horizontal_sigma,
+)
+from taco_mav.core.ukf import PlanarUkf, fix_covariance
+
+
+class PlusMode:
+    """taco+'s hooks for the Localiser `host` (see mode.Mode), with q the taco+ parameters (params.plus)."""
+
+    takes_ground_motion = True
+    gnss_replaces = False  # a Kalman update, not a re-anchoring
+
+    def __init__(self, host: Host, q: PlusParams) -> None:
+        self.host, self.p, self.q = host, host.p, q
+        t0 = host.t
+        host.pre.gyro_heading = q.gyro_heading
+        self.lock = LockMonitor(q.lost_after, q.lost_after_s, q.capture_radius_m, q.confirm_fixes, last_accept_t=t0)
+        self.fix_scale = FixNoiseScale(q.fix_scale_min, q.fix_scale_max, q.fix_scale_window,
+                                       s2=min(max(q.fix_scale_initial, q.fix_scale_min), q.fix_scale_max) ** 2)
+        self.report_factor = VarianceFactor(q.report_factor_min, q.report_factor_max, q.report_window)
+        self.guard = SafetyGuard(host, q, self.lock)
+        self.zero = ZeroVelocity(host, q, self.guard, t0)
+        self.answers = AnswerHold(host, q, self.lock, self.report_factor, self.guard)
+        self.camera = CameraSpeed(host, q, self.zero, self.guard, self.feedback)
+        self.gnss = GnssUpdate(host, q, self.zero, self.guard, self.feedback)
+        self.odo = 0.0  # distance travelled, metres (new frames only)
+        self._queries = 0  # queries planned since the start
+        self._track_unit = (0.0, 0.0)  # integral of the compass's unit heading vector over time, s (ENU)
+        self._odo_at_query = 0.0  # odometer when the last query was planned, m
+        self._odo_at_fix = 0.0  # ... at the capture of the last accepted fix
+        self._deferred = 0  # weak answers deferred in a row (defer_w)
+        self._last_answer_t = -math.inf
+        self._gnss_was_healthy = False  # the real GNSS was in use at the last trigger check
+
+    def make_ukf(self, x: float, y: float, heading: float) -> PlanarUkf:
+        """(x, y, theta, dv, b[, beta][, the map's offset]) with taco+'s initial sigmas; map.georef_sigma_m > 0
+        adds the map's georeferencing offset as two more states (ukf.py)."""
+        p, q = self.p, self.q
+        s_xy, s_th = p.ukf.initial_sigma_xy_m, p.ukf.initial_sigma_theta_rad
+        var = [s_xy**2, s_xy**2, s_th**2, q.initial_speed_sigma_mps**2, q.initial_bias_sigma_mps2**2,
+               q.compass_bias_sigma_rad**2][:n_states(q)]
+        g = p.map_georef_sigma_m
+        if g > 0.0:
+            if len(var) != 6:
+                raise ValueError("map.georef_sigma_m > 0 needs the compass-bias state "
+                                 "(plus.compass_bias_sigma_rad > 0)")
+            var += [g * g, g * g]
+        return PlanarUkf(np.array([x, y, heading] + [0.0] * (len(var) - 3)), np.diag(var), p.ukf.alpha, p.ukf.beta,
+                         p.ukf.kappa)
+
+    # ------------------------------------------------------------------ IMU path and frames
+    def before_imu(self, fresh: bool) -> None:
+        if fresh and self.q.guard and not self.guard.unaided.started:
+            self.guard.reset()
+
+    def after_imu(self, sample: ImuSample) -> None:
+        pre = self.host.pre
+        self.zero.add_imu(sample, pre.accel_fwd)
+        if self.q.guard:
+            self.guard.add_imu(sample.t, pre.accel_fwd, pre.theta)
+
+    def set_drive_command(self, t: float, driving: bool) -> None:
+        self.zero.set_drive_command(t, driving)
+
+    def open_tick(self, tick: Tick) -> None:
+        inc = tick.inc  # what a speed error of 1 m/s moves the estimate by over this frame, ENU metres
+        mid = tick.theta_start + 0.5 * inc.d_theta
+        ux, uy = self._track_unit
+        self._track_unit = tick.track_unit = (ux + inc.dt * math.cos(mid), uy + inc.dt * math.sin(mid))
+        self.zero.decide(tick)
+
+    def predict(self, tick: Tick, terms: ErrorTerms) -> None:
+        """UKF predict over one frame with taco+'s process noise (noise.py), the compass bias decaying."""
+        inc, ukf = tick.inc, self.host.ukf
+        dt = max(inc.dt, 1e-6)
+        Q = process_noise_plus(float(ukf.x[2]), dt, inc.distance, self.q, n=len(ukf.x))
+        ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q, dt=inc.dt, bias_decay=bias_decay(dt, self.q))
+
+    def odometry_sigma(self, tick: Tick) -> float:
+        """The smoother's odometry sigma for this frame, metres: taco+'s own position process noise plus what
+        the speed-error uncertainty moves the frame by (sigma_dv dt), instead of the paper's >= 1 m."""
+        inc = tick.inc
+        Q = process_noise_plus(float(tick.x[2]), max(inc.dt, 1e-6), inc.distance, self.q)
+        return max(math.sqrt(0.5 * float(np.trace(Q[:2, :2]))) + math.sqrt(max(float(tick.P[3, 3]), 0.0)) * inc.dt,
+                   1e-3)
+
+    def after_heading(self, tick: Tick) -> None:
+        self.zero.update(tick)
+        if tick.dv_fed:
+            self.host.ukf.x[3] -= tick.dv_fed
+
+    def close_tick(self, tick: Tick) -> None:
+        self.odo += tick.inc.distance
+        self.feedback(tick)
+        if self.q.gyro_heading:  # the gyro integrates on from the filter's heading
+            self.host.pre.rebase_heading(float(self.host.ukf.x[2]))
+        if self.q.guard:
+            self.guard.check()
+
+    def feedback(self, tick: Tick) -> None:
+        """Move the speed-error estimate into the preintegrator (clamped at 0 unless reversing is allowed)."""
+        pre, ukf = self.host.pre, self.host.ukf
+        old = pre.speed
+        new = old + float(ukf.x[3])
+        if not self.p.imu.allow_reverse:
+            new = max(new, 0.0)
+        applied = new - old
+        if applied:
+            pre.speed = new
+            ukf.x[3] -= applied
+            tick.dv_fed += applied
+            tick.x[3] -= applied
+
+    # ------------------------------------------------------------------ trigger and search
+    def plan_search(self) -> tuple[str, float, np.ndarray] | None:
+        """taco+'s trigger (search.py): recover while lock is lost, verify a held answer, confirm, hand over
+        from a lost GNSS, the map trigger, distance, covariance, time."""
+        host, q = self.host, self.q
+        sig = horizontal_sigma(host.ukf.P)
+        if self.lock.on_uncertainty(host.t, sig):
+            self.answers.inflate(sig)
+            sig = horizontal_sigma(host.ukf.P)
+        if host.t - self._last_answer_t < q.recover_interval_s:
+            return None
+        state = self.lock.state
+        if state is LockState.LOST:
+            rings = min(grid_rings(sig, q) + self.lock.attempts, q.grid_max_rings)
+            return self._planned("recover", hex_offsets(rings, q.grid_spacing_m))
+        arm = cross_offsets(cross_arm(sig, q), self.p.trigger.multi_crop)
+        if any(host.t - h[1] <= q.confirm_window_s for h in self.answers.held):
+            return self._planned("verify", arm)  # a held answer waits for a second one
+        if state is LockState.CONFIRMING:
+            return self._planned("confirm", arm)
+        if self._gnss_handover():
+            return self._planned("handover", arm)
+        if self._map_anchored(sig):
+            return self._planned("map", arm)
+        retry = q.defer_retry_m if self._deferred else q.trigger_retry_m
+        if (q.trigger_distance_m > 0.0 and self.odo - self._odo_at_fix >= q.trigger_distance_m
+                and self.odo - self._odo_at_query >= retry):
+            return self._planned("distance", arm)
+        if sig >= q.trigger_sigma_m:
+            return self._planned("covariance", arm)
+        # also at an apparent stop (one the IMU cannot tell from a smooth cruise must not silence the camera,
+        # issue 19), unless the autopilot confirms it does not drive
+        stopped = self.zero.stopped_on_command()
+        every = q.trigger_retry_s if q.trigger_retry_s > 0.0 and self.answers.last_answer_weak else q.trigger_time_s
+        if host.t - host.last_fix_t >= every and not (stopped and (self.zero.active or self.zero.still.stationary)):
+            return self._planned("time", arm)
+        return None
+
+    def _planned(self, reason: str, offsets: np.ndarray) -> tuple[str, float, np.ndarray]:
+        self._odo_at_query = self.odo
+        self._queries += 1
+        return reason, 0.0, offsets
+
+    def _map_anchored(self, sig: float) -> bool:
+        """The map trigger (config plus.map_trigger_ratio): with the map's offset as states, the position (1-sigma
+        `sig`, m) is known better than map_trigger_ratio times the offset's 1-sigma in its least known direction,
+        so a fix now teaches the offset; asked at once, then every map_trigger_m metres while it lasts."""
+        ukf = self.host.ukf
+        if len(ukf.x) < 8 or self.q.map_trigger_ratio <= 0.0:
+            return False
+        lam_b = float(np.linalg.eigvalsh(ukf.P[6:8, 6:8])[-1])
+        if sig * sig >= self.q.map_trigger_ratio**2 * lam_b:
+            return False
+        return self._queries == 0 or self.odo - self._odo_at_query >= self.q.map_trigger_m
+
+    def _gnss_handover(self) -> bool:
+        """True once when the real GNSS that was in use is lost or held off: the camera at once, rather than
+        when the uncertainty has grown, takes over from the receiver's wandering position (issue 14)."""
+        g = self.host.gnss.guard
+        healthy = g is not None and g.healthy_at(self.host.t)
+        lost = self._gnss_was_healthy and not healthy
+        self._gnss_was_healthy = healthy
+        return lost
+
+    # ------------------------------------------------------------------ fixes
+    def add_fix(self, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome:
+        """Consensus over the candidates, the chi-square innovation gate, held answers and the lock state machine
+        (every answered trigger without an accepted fix counts towards loss of lock)."""
+        host, answers = self.host, self.answers
+        q = host.take_pending(query_id, results)
+        self._last_answer_t = host.t
+        if isinstance(q, FixOutcome):
+            if q.reason == "no_results":
+                answers.failed(q.reason, 0.0, self.odo)
+            return q
+        now, p, qp = host.t, self.p, self.q
+        weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
+        xy = np.full((len(results), 2), np.nan)
+        psi = np.full(len(results), np.nan)
+        for k, r in enumerate(results):
+            if r is not None:
+                xy[k] = fix_position(q.crop_centres[k], q.heading, r.t, p.camera_lever_fwd_left_m)
+                psi[k] = yaw_residual(r.R)
+        w = np.array(weights)
+        finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
+        with np.errstate(invalid="ignore"):
+            yaw_ok = (np.abs(psi) <= p.gate.yaw_residual_max_rad) | (not p.gate.enabled)
+        usable = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
+        c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m, qp.consensus_weight_power)
+        host.last_fix_t = max(host.last_fix_t, now if p.latency.apply_on_arrival else q.capture_t)
+        if c is None:
+            reason = "nonfinite" if not finite.any() else ("yaw_gate" if not (finite & yaw_ok).any() else "weak")
+            answers.failed(reason, 0.0, self.odo)
+            return host.log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
+        k, z = c.index, c.xy
+        tick = host.capture_tick(q)
+        if tick is None:
+            return host.log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))
+        if self._defer(c.weight, tick.P):  # weak, and the filter can wait for a better one: ask again
+            return host.log(FixOutcome(query_id, False, "deferred", q.capture_t, now, k, z, psi[k], weights=weights))
+        # the matcher's w mapped as in the paper (plus.fix_isotropic: both sigmas their mean)
+        s_f0, s_l0 = host.fix_sigmas(c.weight, False if qp.fix_isotropic else None)
+        sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
+        s_f, s_l = sc * s_f0, sc * s_l0
+        pred, Pz = host.ukf.fix_prediction(tick.x, tick.P)  # position (+ the map's offset), its covariance
+        innov = z - pred
+        jump = float(np.linalg.norm(innov))
+        nis = float(innov @ np.linalg.solve(Pz + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
+        state = self.lock.state
+        if state is LockState.LOST:
+            gate = qp.recover_chi2_gate if qp.recover_chi2_gate > 0.0 else math.inf  # under the widened P
+        else:
+            gate = qp.chi2_gate if c.support > 1 else qp.chi2_gate_single
+        if nis > gate:
+            answers.failed("innovation_gate", jump, self.odo, innov if c.weight >= qp.guard_w_min else None)
+            return host.log(FixOutcome(query_id, False, "innovation_gate", q.capture_t, now, k, z, psi[k], s_f, s_l,
+                                        nis, weights))
+        held = answers.hold(state, innov, jump, Pz, now, self.odo, now - q.capture_t, tick.track_unit)
+        if held == "hold":
+            answers.failed("unconfirmed", jump, self.odo)
+            return host.log(FixOutcome(query_id, False, "unconfirmed", q.capture_t, now, k, z, psi[k], s_f, s_l, nis,
+                                        weights))
+        if state is LockState.LOST or held == "confirmed":  # relocalise: the candidate replaces the position
+            tick.P = tick.P.copy()  # (the jump enters P)
+            tick.P[:2, :2] += jump * jump * np.eye(2)
+        answers.held = []
+        learn = state is LockState.LOCKED and held is None
+        if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
+            self.fix_scale.update(innov, Pz, fix_covariance(float(tick.x[2]), s_f0, s_l0))
+        # the answer's rotation measures the true heading at capture (plus.fix_yaw_sigma_rad; 0: gate only)
+        heading = (q.heading + float(psi[k]), qp.fix_yaw_sigma_rad) if qp.fix_yaw_sigma_rad > 0.0 else None
+        host.fuse(tick, z, s_f, s_l, heading)
+        self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
+        if learn:
+            self.report_factor.update(nis)
+        # a confirmed jump is a relocalisation: half of it stays in P until confirm_fixes later fixes agree
+        answers.settle_lock(LockState.LOST if held == "confirmed" else state, jump, s_f, s_l)
+        if host.history:
+            self.feedback(host.history[-1])
+        answers.accepted()
+        self._deferred = 0
+        self.zero.seen(math.sqrt(max(float(host.ukf.P[3, 3]), 0.0)))
+        if self.q.guard:
+            self.guard.reset()
+        return host.log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, z, psi[k], s_f, s_l, nis, weights))
+
+    def _defer(self, w: float, P: np.ndarray) -> bool:
+        """Whether to leave a weak answer (consensus weight w) unused and ask again (plus.defer_answer)."""
+        healthy = self.lock.state is LockState.LOCKED and not self.guard.flagged
+        if defer_answer(w, self._deferred, healthy, horizontal_sigma(P), self.odo - self._odo_at_fix, self.q):
+            self._deferred += 1
+            return True
+        return False
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self, est: Estimate) -> Estimate:
+        """The reported estimate: the fixes' variance factor makes the reported accuracy honest while locked and
+        while the safety guard agrees; otherwise the filter's own (widened) covariance is reported as it is
+        (issue 18). Not while a real GNSS is fused: the factor is learnt from camera fixes and says nothing of the
+        receiver's wander, which the GNSS update keeps in P. Rejections that agree keep a floor under it."""
+        x = self.host.ukf.x
+        if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self.guard.flagged
+                and not self.host.gnss.in_use):
+            est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
+        lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
+        floor = self.answers.report_floor_m
+        if lo < floor**2:
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + (floor**2 - lo) * np.eye(2))
+        est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
+                         compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
+                         map_offset=[float(v) for v in x[6:8]],
+                         stationary=self.zero.active)
+        return est
+
+    # ------------------------------------------------------------------ other inputs and events
+    def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
+        """The camera's ground-plane motion as a speed measurement (camera_speed.py)."""
+        return self.camera.add(t0, t1, d_fwd, d_left, sigma_m)
+
+    def after_gnss(self, fix: GnssFix, out: GnssOutcome) -> None:
+        self.camera.after_gnss(fix, out)
+
+    def lock_events(self) -> list[tuple[float, str, str]]:
+        """(t, kind, detail) of lock_lost / relocalised / relock_failed / recovered."""
+        return list(self.lock.events)
+
+    def take_lock_events(self) -> list[tuple[float, str, str]]:
+        """The lock events not yet taken (the daemon logs each once)."""
+        return self.lock.take_unreported()
+
+    # ------------------------------------------------------------------ a real GNSS: a Kalman update (gnss.py)
+    def gnss_apply(self, tick: Tick, m: GnssMeasurement) -> None:
+        self.gnss.apply(tick, m)
+
+    def gnss_fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
+        self.gnss.fused_live(tick, m)
+
+    def gnss_anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+        return self.gnss.anchor_terms(tick)
+
+    def gnss_after_rollback(self) -> None:
+        self.gnss.after_rollback()
