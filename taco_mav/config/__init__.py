@@ -28,10 +28,10 @@ from taco_mav.config.loading import (LOCAL_PROFILE_DIR, PROFILE_DIR, load_profil
                                      resolve_profile_path, shipped_profiles)
 from taco_mav.config.profile import MATCHERS, Profile, frd_fwd_left, localiser_params, profile_to_dict, replace_in
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
-from taco_mav.core.gnss_params import GnssParams
+from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, SmootherParams, TriggerParams,
                                   UkfParams)
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 
 __all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "ClassicalMatcherConfig",
            "EmulatorConfig", "ErrorModelParams", "Estimator", "Fg2Config", "GateParams", "GnssParams", "ImuParams",

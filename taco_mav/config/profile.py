@@ -10,10 +10,10 @@ from typing import Any
 from taco_mav.config.fields import Estimator
 from taco_mav.config.link import LinkConfig, OutputConfig
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
-from taco_mav.core.gnss_params import GnssParams
+from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, LocaliserParams,
                                   SmootherParams, TriggerParams, UkfParams)
-from taco_mav.core.plus_params import PlusParams
+from taco_mav.core.plus.params import PlusParams
 
 __all__ = ["MATCHERS", "Profile", "frd_fwd_left", "localiser_params", "profile_to_dict", "replace_in"]
 
