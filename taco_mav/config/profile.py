@@ -24,7 +24,7 @@ MATCHERS: tuple[str, ...] = ("classical", "emulator", "fg2")
 @dataclass(frozen=True)
 class Profile:
     """A whole vehicle profile. The estimator's sections are the core's own parameter classes (core/params.py,
-plus_params.py, gnss_params.py: one definition, one default each); the sensor and link sections are here."""
+core/plus/params.py, core/gnss/params.py: one definition, one default each); the sensor and link sections are here."""
 
     name: str = "default"
     estimator: Estimator = Estimator.PAPER

@@ -1,6 +1,6 @@
 """The Localiser's parameters: the paper's sections (Sec. III-B to III-G of `paper/TACO.tex`), the fix-latency
 settings, and `LocaliserParams`, which composes them with taco+'s and the GNSS guard's. Each parameter is defined
-once, here or in plus_params.py / gnss_params.py, with its one default and where it comes from: the paper's value
+once, here or in plus/params.py / gnss/params.py, with its one default and where it comes from: the paper's value
 cited by section ("Sec. III-B" = IMU Preintegration and Error Model; III-D = Triggering and Multi-Crop Search;
 III-E = Yaw-Residual Gate; III-F = UKF Fusion; III-G = Factor Graph and Loop Closure; IV = Results), or marked
 "not in the paper" with the reason for the choice. A vehicle profile's sections load into these very classes

@@ -40,7 +40,7 @@ class OfflineMotion:
 
     def tick(self, loc) -> None:
         """After each IMU sample: record the heading; when a measurement is due, measure and hand it to `loc`
-        (a PlusLocaliser)."""
+        (taco+)."""
         self.headings.add(float(loc.t), float(loc.pre.theta))
         if loc.t < self._next:
             return

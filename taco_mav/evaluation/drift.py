@@ -1,7 +1,7 @@
 """Dead-reckoning drift of a vehicle's IMU and compass, measured against ground truth, and the taco+ process
 noise it implies (`taco-mav drift`).
 
-taco+ models the IMU's error growth between fixes with random walks (core/plus.py): a speed error driven at
+taco+ models the IMU's error growth between fixes with random walks (core/plus/noise.py): a speed error driven at
 `q_speed_mps` (m/s)/sqrt(s) and integrating an accelerometer bias that walks at `q_bias_mps2`
 (m/s^2)/sqrt(s); a heading error walking at `q_theta_rad` rad/sqrt(s) plus a compass bias, first-order
 Gauss-Markov with std `compass_bias_sigma_rad` and correlation time `compass_bias_tau_s`. The defaults are

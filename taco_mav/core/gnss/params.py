@@ -1,6 +1,6 @@
 """Real GNSS and its spoofing/jamming guard (issue 14, not in the paper): the one definition of the parameters,
-their defaults and where each comes from. A profile's `gnss:` section loads into it; core/gnss_guard.py and
-gnss_fusion.py read it. Lengths metres, angles radians, times seconds."""
+their defaults and where each comes from. A profile's `gnss:` section loads into it; core/gnss/guard.py and
+core/gnss/fusion.py read it. Lengths metres, angles radians, times seconds."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ class GnssParams:
     GNSS reading at start-up). Both estimators take `Localiser.add_gnss`: taco+ fuses position, speed and course
     (calibrating speed error, accelerometer and compass bias), paper mode re-anchors on it. The guard tests each
     reading against the filter's state `reference_lag_s` earlier carried forward by IMU dead reckoning alone
-    (core/gnss_guard.py). Defaults were set on synthetic drives with the automotive IMU preset (the pessimistic
+    (core/gnss/guard.py). Defaults were set on synthetic drives with the automotive IMU preset (the pessimistic
     one, docs/taco_plus.md) and the simulator's receiver (white sigma_h / 2, Gauss-Markov bias 0.87 sigma_h,
     tau 60 s): honest 1.5 m readings accepted 100 % of the time, velocity-dragging spoofs caught in 1-2 s."""
 

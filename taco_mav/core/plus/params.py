@@ -1,6 +1,6 @@
 """taco+'s parameters (estimator: taco+; issues 7, 17, 18, 19; not in the paper): the one definition, its
 defaults and where each comes from. A profile's `plus:` section loads into it (config/loading.py); the core's
-taco+ parts read it (core/plus.py, localiser_plus.py, lock.py, ...). Lengths metres, angles radians, times
+taco+ parts read it (core/plus/: mode.py, noise.py, lock.py, ...). Lengths metres, angles radians, times
 seconds, rates per second or per metre travelled."""
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class PlusParams:
     # a measurement moving sideways more than this (m) plus 30 % of its forward motion is refused: a wheeled
     # vehicle barely slips, so it is a heading change the compass got wrong (SITL: an AHRS settling at boot)
     camera_lateral_max_m: float = field(default=0.15, metadata=bounded(0.0))
-    # Closed-loop safety guard (issue 19, core/imu_check.py): the estimate against the IMU-only track since the
+    # Closed-loop safety guard (issue 19, core/plus/imu_check.py): the estimate against the IMU-only track since the
     # last accepted fix; a disagreement beyond guard_k combined sigmas (and guard_floor_m) keeps the reported
     # variance at least the disagreement squared and holds zero-velocity updates off; guard_gate_misses
     # consecutive innovation-gate rejections widen the position uncertainty by half the disagreement, when they
