@@ -1,4 +1,4 @@
-"""taco+'s held answers and failed triggers (core/answer_hold.py): a jump the IMU track does not allow and every
+"""taco+'s held answers and failed triggers (core/plus/answer_hold.py): a jump the IMU track does not allow and every
 recovery candidate wait for an agreeing answer, chance peaks do not reset or confirm them, a slow matcher can
 still confirm, and rejections widen the reported accuracy only when they agree."""
 

@@ -1,4 +1,4 @@
-"""The closed-loop safety guard (core/imu_check.py and its use in taco+): on a SITL-like drive whose IMU has
+"""The closed-loop safety guard (core/plus/imu_check.py and its use in taco+): on a SITL-like drive whose IMU has
 no vibration, the IMU cannot tell a smooth cruise from a stop; the estimate must keep the motion and, when
 anything loses it, report an accuracy that covers the error."""
 

@@ -1,4 +1,4 @@
-"""GNSS ground speed against the camera's (core/speed_check.py): the camera's scale error is learnt while the
+"""GNSS ground speed against the camera's (core/plus/speed_check.py): the camera's scale error is learnt while the
 receiver is honest; a velocity drag along the track (a careful spoofer) is flagged within seconds."""
 
 import math

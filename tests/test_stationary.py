@@ -1,4 +1,4 @@
-"""The IMU stillness detector (core/stationary.py): a stop, a smooth steady acceleration (SITL's rover pulling
+"""The IMU stillness detector (core/plus/stationary.py): a stop, a smooth steady acceleration (SITL's rover pulling
 away has no vibration at all) and a rough cruise."""
 
 import numpy as np
