@@ -237,6 +237,7 @@ def run_episode(imu_kind: str, frames: int, seed: int, opt: FuzzOptions) -> dict
         d.stop()
         d.join(10.0)
         stopped = d._thread is not None and not d._thread.is_alive()
+        ep._drain()  # what the last output slot sent after the drain above (its three messages go out in turn)
     finally:
         threading.excepthook = previous_hook
         ep.close()
