@@ -40,6 +40,10 @@ os.environ.setdefault("MAVLINK20", "1")
 import numpy as np  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sitl_faults import KINDS as FAULT_KINDS  # noqa: E402
+from sitl_faults import FaultRun  # noqa: E402
+
 M = mavutil.mavlink
 HOME = (-35.363261, 149.165230, 584.0, 0.0)  # SITL's default (CMAC), lat, lon, alt m, heading deg
 ROVER_AUTO, ROVER_HOLD = 10, 4
@@ -67,6 +71,8 @@ class MissionSpec:
     daemon_origin: bool = False  # give the daemon --origin (home) instead of letting it find one
     restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO and start it again (issue 30)
     daemon_args: tuple[str, ...] = ()  # more `taco-mav run` options (e.g. --record, --shadow)
+    fault: str | None = None  # a fault on cue (tools/sitl_faults.py: camera, stall, link, glitch, spoof)
+    fault_after_s: float = 60.0  # ... this long after AUTO
 
 
 def free_instance() -> int:
@@ -271,11 +277,15 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
     sitl = subprocess.Popen([str(ardurover), "--model", "rover", "--speedup", "1", "-I", str(inst), "-w", "--home", home,
                              "--defaults", f"{defaults},{extra}"], cwd=sitl_dir, stdout=open(sitl_dir / "out.log", "w"),
                             stderr=subprocess.STDOUT, start_new_session=True)
-    daemon = None
+    daemon = fault = None
     try:
         gcs = Gcs(5760 + 10 * inst)
+        camera, port = f"world:{world}", 5762 + 10 * inst
+        if spec.fault is not None:
+            fault = FaultRun(spec.fault, spec.fault_after_s, out, gcs, spec.home, spec.setup)
+            camera, port = fault.camera(world), fault.connect_port(port)
         daemon_cmd = [sys.executable, "-m", "taco_mav.cli", "run", "--profile", spec.profile, "--connect",
-                      f"tcp:127.0.0.1:{5762 + 10 * inst}", "--camera", f"world:{world}", "--log-dir",
+                      f"tcp:127.0.0.1:{port}", "--camera", camera, "--log-dir",
                       str(out / "daemon"), "--estimator", spec.estimator]
         if spec.daemon_origin:
             daemon_cmd.append(f"--origin={spec.home[0]},{spec.home[1]},{spec.home[2]}")
@@ -314,6 +324,8 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
                 kind = msg.get_type()
                 if kind == "MISSION_ITEM_REACHED" and msg.seq >= last_seq:
                     done = True
+            if fault is not None:
+                fault.step(time.time() - auto_t)
             if spec.setup == "handover" and gnss_off_t is None and time.time() - auto_t >= spec.gnss_off_after_s:
                 gcs.set_param("SIM_GPS1_ENABLE", 0)
                 gnss_off_t = time.time()
@@ -325,10 +337,14 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         figures["mission_s"] = time.time() - auto_t
         figures["gnss_off_after_auto_s"] = None if gnss_off_t is None else gnss_off_t - auto_t
         figures["daemon_restarted_after_auto_s"] = None if restart_t is None else restart_t - auto_t
+        if fault is not None:
+            figures.update(fault.figures(out / "daemon"))
         return _finish(out, gcs, spec, figures, auto_t)
     finally:
         stop_group(daemon, signal.SIGINT)
         stop_group(sitl, signal.SIGTERM)
+        if fault is not None:
+            fault.close()
 
 
 def stop_group(proc: subprocess.Popen | None, first: int, wait_s: float = 15.0) -> None:
@@ -582,6 +598,9 @@ def main() -> int:
                     "--daemon-arg=--record --daemon-arg=--shadow)")
     ap.add_argument("--restart-after", type=float, help="SIGTERM the daemon this many seconds after AUTO and start "
                                                           "it again with the same command")
+    ap.add_argument("--fault", choices=FAULT_KINDS, help="a fault on cue (tools/sitl_faults.py; glitch and spoof "
+                                                         "need --setup handover)")
+    ap.add_argument("--fault-after", type=float, default=60.0, help="seconds after AUTO the fault starts")
     a = ap.parse_args()
     if not a.ardurover or not Path(a.ardurover).exists():
         print("sitl_mission: error: --ardurover (or $ARDUROVER) must name the SITL binary", file=sys.stderr)
@@ -589,7 +608,7 @@ def main() -> int:
     spec = MissionSpec(side_m=a.side, laps=a.laps, wp_speed=a.wp_speed, setup=a.setup,
                        gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
                        daemon_origin=a.daemon_origin, restart_after_s=a.restart_after,
-                       daemon_args=tuple(a.daemon_arg),
+                       daemon_args=tuple(a.daemon_arg), fault=a.fault, fault_after_s=a.fault_after,
                        profile=a.profile or ("ardupilot_rover_gps2" if a.setup == "handover" else "ardupilot_rover"))
     res = run_mission(Path(a.ardurover), Path(a.out), spec)
     print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))

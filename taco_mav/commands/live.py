@@ -31,7 +31,8 @@ def check_camera_and_map(args: argparse.Namespace, matcher: str) -> None:
                          "--dead-reckoning runs without fixes")
     world = args.camera.startswith("world:") if args.camera else False
     if args.camera and world:
-        checks.world(args.camera[len("world:"):], f"--camera {args.camera}")  # its mosaic is the default map
+        # its mosaic is the default map; `?faults=FILE` after the folder cues camera faults (simulation only)
+        checks.world(args.camera[len("world:"):].partition("?")[0], f"--camera {args.camera}")
     elif args.camera and args.camera.startswith("folder:"):
         checks.input_dir(args.camera[len("folder:"):].partition("@")[0], "--camera")
     if args.map:

@@ -20,6 +20,8 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from taco_mav.camera.sources import FrameGuard, FrameRejected
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
@@ -135,6 +137,9 @@ class MotionPipeline:
         a, b = f0(), f1()
         if b.t - a.t < 0.5 * MIN_GAP_S:
             return "same_frame"
+        cam = self.fixes.camera
+        if cam is not None and not cam.noiseless and np.array_equal(a.image, b.image):
+            return "frozen_frame"  # a real sensor never gives two identical frames: its driver hung
         dtheta = self.headings.change(a.t, b.t)
         if dtheta is None:
             return "no_heading"

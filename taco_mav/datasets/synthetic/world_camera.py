@@ -1,5 +1,5 @@
-"""The `--camera world:DIR` source: renders a synthetic world (flat or 3-D) at the simulator's true pose
-(SIMSTATE), for simulation only.
+"""The `--camera world:DIR[?faults=FILE]` source: renders a synthetic world (flat or 3-D) at the simulator's true
+pose (SIMSTATE), for simulation only; FILE puts camera faults on cue (world_faults.py).
 
 It lives here, beside the renderers it draws with, and not in `taco_mav.camera.sources`: the camera layer (and the
 daemon's link layer above it) never imports datasets. `taco_mav.camera.sources.open_camera` finds the `world:` scheme in
@@ -21,6 +21,7 @@ import numpy as np
 from taco_mav.camera.calibration import LensCalibration
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.camera.sources import ClockDomain, register_camera_scheme
+from taco_mav.datasets.synthetic.world_faults import CameraFaults
 from taco_mav.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -59,7 +60,7 @@ class WorldSource:
     noiseless = True
 
     def __init__(self, world_dir: str | Path, camera: GroundCamera, ring: int = 2000,
-                 lens: LensCalibration | None = None) -> None:
+                 lens: LensCalibration | None = None, faults: str | Path | None = None) -> None:
         import rasterio
 
         from taco_mav.datasets.synthetic.render import GroundRenderer, LensRenderer
@@ -86,6 +87,8 @@ class WorldSource:
         self.projector = UtmProjector(int(epsg))
         self._poses: deque[tuple[float, float, float, float]] = deque(maxlen=ring)
         self._lock = threading.Lock()
+        self.faults = None if faults is None else CameraFaults(faults)  # on cue, for closed-loop tests
+        self.noiseless = faults is None  # with faults, a real sensor's noise (world_faults.py)
 
     def feed_pose(self, t: float, lat: float, lon: float, yaw_ned: float) -> None:
         e, n = self.projector.to_utm(lat, lon)
@@ -112,8 +115,10 @@ class WorldSource:
         if abs(best[0] - t) > max_gap_s:
             return None
         if self.is_3d:
-            return best[0], self.renderer.render(np.array(best[1:]), best[0] - (self._t0 or 0.0))
-        return best[0], self.renderer.render(np.array(best[1:]))
+            frame = self.renderer.render(np.array(best[1:]), best[0] - (self._t0 or 0.0))
+        else:
+            frame = self.renderer.render(np.array(best[1:]))
+        return (best[0], frame) if self.faults is None else self.faults.apply(best[0], frame)
 
     def close(self) -> None:
         if self.is_3d:
@@ -121,7 +126,14 @@ class WorldSource:
 
 
 def _open_world(body: str, camera: GroundCamera, lens: LensCalibration | None) -> WorldSource:
-    return WorldSource(body, camera, lens=lens)
+    """`world:DIR` or `world:DIR?faults=FILE` (camera faults on cue, world_faults.py)."""
+    world, sep, query = body.partition("?")
+    if not sep:
+        return WorldSource(world, camera, lens=lens)
+    key, eq, value = query.partition("=")
+    if key != "faults" or not eq or not value:
+        raise ConfigError(f"--camera world:{body}: after '?' only faults=FILE is known")
+    return WorldSource(world, camera, lens=lens, faults=value)
 
 
 def register_world_camera() -> None:
