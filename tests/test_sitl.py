@@ -75,8 +75,9 @@ def test_camera_frozen_then_black_mid_mission(tmp_path):
     spec = MissionSpec(setup="solo", fault="camera", fault_after_s=40.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     _fault_check(res, spec)
-    fixes = res["daemon_fixes"]
+    fixes, motion = res["daemon_fixes"], res["daemon_camera_motion"]
     assert fixes.get("frozen_frame", 0) >= 1 and fixes.get("blank_frame", 0) >= 1, fixes
+    assert motion.get("frozen_frame", 0) >= 1, motion  # the camera-speed loop refuses them too
 
 
 def test_matcher_worker_stalled_mid_mission(tmp_path):

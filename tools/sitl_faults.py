@@ -189,7 +189,8 @@ class FaultRun:
 
 def daemon_summary(daemon_dir: Path) -> dict[str, Any]:
     """From the daemon's event logs (daemon_dir/*/events.jsonl): its last `stats` line's counters (answers by
-    outcome, link outages, stuck matchers) and how often its GNSS guard rejected or re-accepted the receiver."""
+    outcome, camera-speed measurements by outcome, link outages, stuck matchers) and how often its GNSS guard
+    rejected or re-accepted the receiver."""
     stats: dict[str, Any] = {}
     kinds: dict[str, int] = {}
     for path in sorted(Path(daemon_dir).glob("*/events.jsonl")):
@@ -204,5 +205,6 @@ def daemon_summary(daemon_dir: Path) -> dict[str, Any]:
             elif kind in ("gnss_rejected", "gnss_accepted_again", "gnss_lost", "lock"):
                 key = kind if kind != "lock" else f"lock_{e.get('kind')}"
                 kinds[key] = kinds.get(key, 0) + 1
-    return {"daemon_fixes": stats.get("fixes", {}), "daemon_link_outages": stats.get("link_outages"),
+    return {"daemon_fixes": stats.get("fixes", {}), "daemon_camera_motion": stats.get("camera_motion", {}),
+            "daemon_link_outages": stats.get("link_outages"),
             "daemon_stuck_matchers": stats.get("stuck_matchers"), "daemon_events": kinds}
