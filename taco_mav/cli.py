@@ -68,6 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="3d: buildings, trees, cars, poles rendered in perspective, the mosaic an aerial photo of "
                    "another day with a ~1 m georeferencing error (run it with --profile synthetic_3d); flat: the "
                    "mosaic is the ground (fast; --profile synthetic) (default 3d; flat with --along-drive)")
+    p.add_argument("--keep-clear", action="append", default=[], metavar="E,N;E,N;...",
+                   help="a path another vehicle drives, metres east,north of the centre (e.g. a SITL mission's "
+                   "square \"0,0;0,60;60,60;60,0;0,0\"): nothing that stands up is placed within 4 m of it "
+                   "(repeatable)")
     _force(p, "the world")
     p.set_defaults(func=offline.cmd_world)
 

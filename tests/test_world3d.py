@@ -3,6 +3,7 @@ error, the appearance gap between a camera frame and an IPM of the map, and the 
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -257,3 +258,41 @@ def test_realism_is_checked(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="along-drive"):
         build_world(tmp_path / "b", along_drive=tmp_path, realism="3d", progress=False)
     assert not (tmp_path / "a" / "world.json").exists() and not (tmp_path / "b").exists()
+
+
+def test_nothing_stands_on_a_keep_clear_path(tmp_path: Path) -> None:
+    """`keep_clear` (a SITL mission's square, metres east/north of the centre): no building footprint within
+    KEEP_CLEAR_M of it (wall points), nothing below crown height (2 m: trunks, poles, parked cars) within 1.5 m,
+    and world.json records the path."""
+    from scipy.spatial import cKDTree
+
+    from taco_mav.datasets.synthetic.layout import KEEP_CLEAR_M
+    from taco_mav.datasets.synthetic.scene3d import Scene3D
+
+    square = [(0.0, 0.0), (0.0, 60.0), (60.0, 60.0), (60.0, 0.0), (0.0, 0.0)]
+    w = build_world(tmp_path / "w", seed=7, length_km=0.3, centre=(-35.363261, 149.165230), progress=False,
+                    realism="3d", keep_clear=[square])
+    meta = json.loads((w / "world.json").read_text())
+    assert meta["keep_clear_en_m"] == [[list(p) for p in square]]
+    # the square in the world's local grid metres (UTM minus the centre's): turned by the meridian convergence
+    from taco_mav.geo import UtmProjector
+
+    proj = UtmProjector(meta["crs_epsg"])
+    e0, n0 = meta["centre_utm"]
+    r = 6378137.0
+    corners = np.array([np.subtract(proj.to_utm(-35.363261 + math.degrees(n / r),
+                                                149.165230 + math.degrees(e / (r * math.cos(math.radians(-35.363261))))),
+                                    (e0, n0)) for e, n in square])
+    path = np.vstack([a + (b - a) * np.linspace(0, 1, 121)[:, None] for a, b in itertools.pairwise(corners)])
+    with np.load(w / "scene3d.npz") as z:
+        s3 = Scene3D.from_npz(z)
+    low = np.vstack([m.pos[(m.pos[:, 2] < 2.0) & (m.mat != Mat.CONTACT_SHADOW)] for m in (s3.static, s3.parked["camera"])])
+    tree = cKDTree(path)
+    assert tree.query(low[:, :2])[0].min() > 1.5
+    # walls: points spread over each wall triangle (pos holds 3 vertices per triangle), not only its corners
+    tri = s3.static.pos[:, :2].reshape(-1, 3, 2)[s3.static.mat[::3] == Mat.WALL]
+    assert len(tri)
+    ab = np.array([(a, b) for a in np.linspace(0, 1, 7) for b in np.linspace(0, 1, 7) if a + b <= 1.0])
+    pts = (tri[:, None, 0] * (1 - ab.sum(1))[None, :, None] + tri[:, None, 1] * ab[None, :, :1]
+           + tri[:, None, 2] * ab[None, :, 1:]).reshape(-1, 2)
+    assert tree.query(pts)[0].min() > KEEP_CLEAR_M

@@ -73,6 +73,7 @@ class MissionSpec:
     daemon_args: tuple[str, ...] = ()  # more `taco-mav run` options (e.g. --record, --shadow)
     fault: str | None = None  # a fault on cue (tools/sitl_faults.py: camera, stall, link, glitch, spoof)
     fault_after_s: float = 60.0  # ... this long after AUTO
+    realism: str = "flat"  # the world the camera sees: flat (the mosaic painted on the ground) or 3d (issue 31)
 
 
 def free_instance() -> int:
@@ -209,7 +210,7 @@ class Gcs:
         number of mission items. home_item: item 0 is home, as ArduPilot expects (PX4: item 0 is the first
         waypoint). frame and alt (metres in that frame) go on every item."""
         lat0, lon0 = home[0], home[1]
-        corners = [(0.0, side), (side, side), (side, 0.0), (0.0, 0.0)]
+        corners = square_corners(side)
         wps = [offset(lat0, lon0, e, n) for _ in range(laps) for e, n in corners]
         items = ([(lat0, lon0, M.MAV_CMD_NAV_WAYPOINT)] if home_item else []) + \
             [(la, lo, M.MAV_CMD_NAV_WAYPOINT) for la, lo in wps]
@@ -250,15 +251,26 @@ def _params(spec: MissionSpec) -> dict[str, float]:
     return p
 
 
-def build_world(out: Path, spec: MissionSpec) -> Path:
+def square_corners(side: float) -> list[tuple[float, float]]:
+    """The mission's square from home, (east, north) metres: N, E, S, W legs."""
+    return [(0.0, side), (side, side), (side, 0.0), (0.0, 0.0)]
+
+
+def build_world(out: Path, spec: Any) -> Path:
+    """OUT/world, centred on `spec.home` (kept when it is there already, of `spec.realism`). `spec`: a MissionSpec or
+    px4_mission's Px4MissionSpec (world_seed, home, side_m, realism). A 3-D world keeps its buildings, trees, poles
+    and parked cars off the mission's square (`taco-mav world --keep-clear`), as it keeps them off its own drive:
+    SITL has no obstacles, and a real rover would not drive through a house."""
     world = out / "world"
-    if not (world / "world.json").exists():
-        subprocess.run([sys.executable, "-m", "taco_mav.cli", "world", "-q", "--out", str(world), "--seed",
-                        str(spec.world_seed), "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}",
-                        # flat: the rover profiles model no map offset (map.georef_sigma_m 0), and the mission
-                        # checks (error over reported accuracy) are set on an exact map
-                        "--realism", "flat"],
-                       check=True)
+    meta = world / "world.json"
+    if meta.exists() and json.loads(meta.read_text()).get("realism", "flat") == spec.realism:
+        return world
+    cmd = [sys.executable, "-m", "taco_mav.cli", "world", "-q", "--out", str(world), "--seed", str(spec.world_seed),
+           "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}", "--realism", spec.realism, "--force"]
+    if spec.realism == "3d":
+        square = [(0.0, 0.0)] + square_corners(spec.side_m)
+        cmd.append("--keep-clear=" + ";".join(f"{e:g},{n:g}" for e, n in square))
+    subprocess.run(cmd, check=True)
     return world
 
 
@@ -596,6 +608,8 @@ def main() -> int:
     ap.add_argument("--daemon-origin", action="store_true", help="start the daemon with --origin (SITL's home)")
     ap.add_argument("--daemon-arg", action="append", default=[], help="one more `taco-mav run` option (repeat: "
                     "--daemon-arg=--record --daemon-arg=--shadow)")
+    ap.add_argument("--realism", choices=("flat", "3d"), default="flat",
+                    help="the synthetic world (`taco-mav world --realism`): flat (default) or 3d")
     ap.add_argument("--restart-after", type=float, help="SIGTERM the daemon this many seconds after AUTO and start "
                                                           "it again with the same command")
     ap.add_argument("--fault", choices=FAULT_KINDS, help="a fault on cue (tools/sitl_faults.py; glitch and spoof "
@@ -609,6 +623,7 @@ def main() -> int:
                        gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
                        daemon_origin=a.daemon_origin, restart_after_s=a.restart_after,
                        daemon_args=tuple(a.daemon_arg), fault=a.fault, fault_after_s=a.fault_after,
+                       realism=a.realism,
                        profile=a.profile or ("ardupilot_rover_gps2" if a.setup == "handover" else "ardupilot_rover"))
     res = run_mission(Path(a.ardurover), Path(a.out), spec)
     print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))

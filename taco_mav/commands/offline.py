@@ -55,8 +55,22 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _polyline(text: str, option: str) -> list[tuple[float, float]]:
+    """"E,N;E,N;..." (metres) -> [(E, N), ...], at least two points, each within 10 km."""
+    points = []
+    for part in text.split(";"):
+        e, n = checks.coordinates(part, option, ("E", "N"))
+        if abs(e) > 1e4 or abs(n) > 1e4:
+            raise UsageError(f"{option} {text}: {part} is more than 10 km from the centre")
+        points.append((e, n))
+    if len(points) < 2:
+        raise UsageError(f"{option} {text}: give at least two points E,N;E,N")
+    return points
+
+
 def cmd_world(args: argparse.Namespace) -> int:
     centre = checks.coordinates(args.centre, "--centre") if args.centre else None
+    keep_clear = [_polyline(text, "--keep-clear") for text in args.keep_clear]
     checks.number(args.length_km, "--length-km", 0.05, 50.0)
     along = checks.input_dir(args.along_drive, "--along-drive") if args.along_drive else None
     out = checks.fresh_folder(checks.output_dir(args.out), "world.json", args.force)
@@ -65,7 +79,7 @@ def cmd_world(args: argparse.Namespace) -> int:
 
     path = build_world(out, seed=args.seed, length_km=args.length_km,
                        centre=(centre[0], centre[1]) if centre else None, along_drive=along,
-                       imu_preset=args.imu, progress=show_progress(args), realism=realism)
+                       imu_preset=args.imu, progress=show_progress(args), realism=realism, keep_clear=keep_clear)
     profile = "synthetic_3d --estimator taco+" if realism == "3d" else "synthetic"
     print(f"wrote world {path} ({realism}; run it with --profile {profile})")
     return 0

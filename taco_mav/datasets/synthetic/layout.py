@@ -9,6 +9,7 @@ roads) and are accepted only where their footprint is free. Everything is drawn 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -21,6 +22,7 @@ log = logging.getLogger(__name__)
 __all__ = ["Building", "ParkingLot", "Scene", "layout_scene", "coarse_noise"]
 
 SIDEWALK_M = 2.5  # sidewalk width each side of the carriageway, metres
+KEEP_CLEAR_M = 4.0  # half-width of the corridor a `keep_clear` path gets: no building, lot or tree centre in it
 ROOF_COLOURS = np.array([
     (150, 75, 60), (170, 95, 70), (120, 60, 50), (110, 110, 115), (80, 82, 88), (150, 150, 150),
     (200, 198, 190), (95, 120, 110), (130, 115, 95), (60, 60, 65), (185, 170, 150), (140, 90, 80),
@@ -110,8 +112,10 @@ def _rect(centre: np.ndarray, axis: np.ndarray, along: float, across: float) -> 
 
 
 def layout_scene(rng: np.random.Generator, extent: tuple[float, float, float, float], roads: list[Road],
-                 junctions: np.ndarray, junction_style: np.ndarray) -> Scene:
-    """Place buildings, parking lots, trees and park paths around `roads` within `extent` (local metres)."""
+                 junctions: np.ndarray, junction_style: np.ndarray, keep_clear: Sequence[np.ndarray] = ()) -> Scene:
+    """Place buildings, parking lots, trees and park paths around `roads` within `extent` (local metres).
+    keep_clear: polylines (N, 2) local metres another vehicle drives (a SITL mission off the streets): nothing
+    that stands up is placed within KEEP_CLEAR_M of them."""
     grid = _Grid(extent)
     road_mask = np.zeros_like(grid.occ)
     for r in roads:
@@ -128,6 +132,9 @@ def layout_scene(rng: np.random.Generator, extent: tuple[float, float, float, fl
     gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3)
     gy = -cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3)  # rows grow southwards
     grid.occ[:] = cv2.dilate(road_mask, np.ones((3, 3), np.uint8))
+    for line in keep_clear:
+        pts = np.round(grid.px(np.asarray(line, np.float64)) * 4).astype(np.int32)
+        cv2.polylines(grid.occ, [pts], False, 1, thickness=int(np.ceil(2 * KEEP_CLEAR_M)), shift=2)
     district = coarse_noise(rng, grid.occ.shape, 140.0)
     scene = Scene(extent=extent, roads=roads, junctions=junctions, junction_style=junction_style,
                   junction_radius=jr, district=district)

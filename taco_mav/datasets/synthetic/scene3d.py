@@ -40,6 +40,9 @@ CAR_RGB = np.array([(0.78, 0.78, 0.80), (0.10, 0.10, 0.12), (0.55, 0.06, 0.08), 
                     (0.45, 0.47, 0.50), (0.90, 0.90, 0.90), (0.22, 0.33, 0.22), (0.70, 0.58, 0.22)], np.float32)
 
 
+CLEAR_PATH_MARGIN_M = 1.5  # extra clearance of static objects from a keep-clear path (build_scene3d), metres
+
+
 class Mat:
     """Material ids (the shader's `mat` attribute)."""
 
@@ -297,13 +300,18 @@ def _frame(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def build_scene3d(scene: Scene, rng: np.random.Generator, ego_xy: np.ndarray | None = None,
-                  ego_t: np.ndarray | None = None, epochs: tuple[str, ...] = ("camera", "aerial")) -> Scene3D:
+                  ego_t: np.ndarray | None = None, epochs: tuple[str, ...] = ("camera", "aerial"),
+                  clear_xy: np.ndarray | None = None) -> Scene3D:
     """The 3-D scene around `scene` (local metres). ego_xy (N, 2) / ego_t (N,): the ego vehicle's path and its
-    times (s); objects keep clear of it (moving cars at the same time). epochs: parked-car days to draw."""
+    times (s); objects keep clear of it (moving cars at the same time). epochs: parked-car days to draw.
+    clear_xy (M, 2): more points static objects keep clear of (another vehicle's path: `build_world`'s
+    keep_clear) by CLEAR_PATH_MARGIN_M more than of the ego path (such a path crosses kerbs at any angle and is
+    driven to within a rover's cross-track error); moving cars do not."""
     ego = cKDTree(ego_xy) if ego_xy is not None and len(ego_xy) else None
+    other = cKDTree(clear_xy) if clear_xy is not None and len(clear_xy) else None
 
     def clear(p: np.ndarray, r: float) -> bool:
-        return ego is None or ego.query(p)[0] > r
+        return (ego is None or ego.query(p)[0] > r) and (other is None or other.query(p)[0] > r + CLEAR_PATH_MARGIN_M)
 
     st = _Builder()
     for b in scene.buildings:
@@ -395,7 +403,7 @@ def build_scene3d(scene: Scene, rng: np.random.Generator, ego_xy: np.ndarray | N
             lane = rd.width_m / 4.0 if not rd.avenue else rd.width_m / 4.0 + float(rng.choice([-0.9, 0.9]))
             car = MovingCars(xy, np.array([0, len(xy)]), np.array([lane]), np.array([rng.uniform(0, length)]),
                              np.array([rng.uniform(5.0, 12.0)]), np.array([rng.integers(len(CAR_RGB))]))
-            if ego is not None and ego_t is not None:
+            if ego_xy is not None and len(ego_xy) and ego_t is not None:
                 tt = ego_t[:: max(1, len(ego_t) // 4000)]
                 pose = moving_cars_at(car, tt)[0]
                 ego_at = ego_xy[:: max(1, len(ego_t) // 4000)]

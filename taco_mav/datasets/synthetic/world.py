@@ -18,9 +18,11 @@ Camera frame times sit in `frames/`, not `image_02/`: the KITTI reader expects o
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
@@ -66,6 +68,31 @@ def _stubs(net_nodes: np.ndarray, net_edges: np.ndarray, roads: list[Road]) -> l
     return out
 
 
+def _keep_clear_local(lines: Sequence[Sequence[tuple[float, float]]], proj: UtmProjector, lat0: float,
+                      lon0: float) -> list[np.ndarray]:
+    """(east, north) metres from the centre (true north, equirectangular as a ground station's mission offsets)
+    -> local grid metres (UTM minus the centre's), one (N, 2) array per polyline."""
+    r = 6378137.0
+    e0, n0 = proj.to_utm(lat0, lon0)
+    out = []
+    for line in lines:
+        en = np.asarray(line, np.float64).reshape(-1, 2)
+        lat = lat0 + np.degrees(en[:, 1] / r)
+        lon = lon0 + np.degrees(en[:, 0] / (r * math.cos(math.radians(lat0))))
+        pts = [proj.to_utm(float(a), float(b)) for a, b in zip(lat, lon)]
+        out.append(np.array([(e - e0, n - n0) for e, n in pts], np.float64))
+    return out
+
+
+def _densify(line: np.ndarray, step_m: float) -> np.ndarray:
+    """Points along polyline `line` (N, 2) no more than `step_m` apart, its vertices included."""
+    pts = [line[:1]]
+    for a, b in itertools.pairwise(line):
+        k = max(1, math.ceil(float(np.linalg.norm(b - a)) / step_m))
+        pts.append(a + (b - a) * (np.arange(1, k + 1)[:, None] / k))
+    return np.vstack(pts)
+
+
 def _oxts_rows(kin: Kinematics, proj: UtmProjector, centre_utm: tuple[float, float], model: ImuNoiseModel,
                seed: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """(N, 30) OXTS values for the kinematics, and the exact truth arrays for truth.npz."""
@@ -98,7 +125,7 @@ def _oxts_rows(kin: Kinematics, proj: UtmProjector, centre_utm: tuple[float, flo
 
 def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[float, float] | None = None,
                 along_drive: Path | None = None, imu_preset: str = "automotive", progress: bool = True,
-                realism: str = "flat") -> Path:
+                realism: str = "flat", keep_clear: Sequence[Sequence[tuple[float, float]]] = ()) -> Path:
     """Generate a world (mosaic + drive in KITTI raw layout) into `out`; returns `out`.
 
     seed: every random choice derives from it (same seed, same bytes). length_km: approximate route length
@@ -108,12 +135,17 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
     imu_preset: automotive | rt3003 | none (ignored with along_drive: the real IMU is kept).
     realism: "flat" (the mosaic is the ground) or "3d" (buildings, trees, cars, poles; the mosaic is an
     aerial render of another day with a georeferencing error: see `world3d.py`).
+    keep_clear: polylines of (east, north) metres from the centre (true north, as a ground station lays out a
+    mission) that another vehicle drives, e.g. a SITL mission's square: buildings, lots, trees, poles and parked
+    cars keep clear of them (`layout.KEEP_CLEAR_M`) as they do of the drive. Empty: the world is unchanged.
     """
     model = noise_preset(imu_preset)
     if realism not in ("flat", "3d"):
         raise ConfigError(f"--realism: {realism!r} is not one of flat, 3d")
     if realism == "3d" and along_drive is not None:
         raise ConfigError("--realism 3d: not available with --along-drive yet")
+    if along_drive is not None and keep_clear:
+        raise ConfigError("--keep-clear: not available with --along-drive")
     if along_drive is not None:
         from taco_mav.datasets.synthetic.along import build_along_world
 
@@ -141,13 +173,16 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
 
     x0, y0, x1, y1, w, h = world_extent(kin.xy, centre_utm)
     roads = net.roads + _stubs(net.nodes, net.edges, net.roads)
-    scene = layout_scene(r_layout, (x0, y0, x1, y1), roads, net.nodes, net.junction_style)
+    clear = _keep_clear_local(keep_clear, proj, lat0, lon0)
+    scene = layout_scene(r_layout, (x0, y0, x1, y1), roads, net.nodes, net.junction_style, keep_clear=clear)
     steps.update()
     extra: dict = {}
     if realism == "3d":
         from taco_mav.datasets.synthetic.world3d import build_world3d
 
-        extra = build_world3d(out, scene, (x0, y0, x1, y1), epsg, centre_utm, seed, kin.xy, kin.t, progress)
+        clear_xy = np.vstack([_densify(c, 0.5) for c in clear]) if clear else None
+        extra = build_world3d(out, scene, (x0, y0, x1, y1), epsg, centre_utm, seed, kin.xy, kin.t, progress,
+                              clear_xy=clear_xy)
         mosaic_name = extra["mosaic"]
     else:
         mosaic_name = paint_and_write(scene, out, x0, y1, w, h, epsg, centre_utm, seed, r_paint, progress)
@@ -174,6 +209,8 @@ def build_world(out: Path, seed: int = 0, length_km: float = 1.0, centre: tuple[
         "frame_rate_hz": FRAME_RATE_HZ, "imu_noise": model.to_dict(), "camera": asdict(cam),
         "length_m": float(kin.s[-1]), "duration_s": float(kin.t[-1]), "along_drive": None, "realism": realism,
     }
+    if clear:
+        meta["keep_clear_en_m"] = [[list(map(float, p)) for p in line] for line in keep_clear]
     meta.update(extra)
     (out / "world.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
     steps.update()

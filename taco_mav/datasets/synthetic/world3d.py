@@ -126,10 +126,11 @@ def render_aerial(gl: GlRenderer3D, x0: float, y1: float, w: int, h: int, res: f
 
 def build_world3d(out: Path, scene: Scene, extent: tuple[float, float, float, float], epsg: int,
                   centre_utm: tuple[float, float], seed: int, ego_xy: np.ndarray, ego_t: np.ndarray,
-                  progress: bool = False) -> dict[str, Any]:
+                  progress: bool = False, clear_xy: np.ndarray | None = None) -> dict[str, Any]:
     """Write ground.tif, ground_mat.tif, scene3d.npz and the aerial mosaic.tif into `out` for the laid-out
     `scene` over `extent` (local metres x0, y0, x1, y1); returns the world.json entries to add.
-    ego_xy (N, 2) local metres / ego_t (N,) s: the drive (objects keep clear of it)."""
+    ego_xy (N, 2) local metres / ego_t (N,) s: the drive (objects keep clear of it); clear_xy (M, 2) local
+    metres: points of other paths static objects keep clear of (`build_world`'s keep_clear)."""
     x0, y0, x1, y1 = extent
     r_ground, r_scene, r_light, r_aerial = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 3]).spawn(4))
     res_g = max(GROUND_M_PER_PX, max(x1 - x0, y1 - y0) / 8000.0)
@@ -141,7 +142,7 @@ def build_world3d(out: Path, scene: Scene, extent: tuple[float, float, float, fl
     del canvas
     ground, _ = _read_rgb(out / "ground.tif")
 
-    s3 = build_scene3d(scene, r_scene, ego_xy, ego_t)
+    s3 = build_scene3d(scene, r_scene, ego_xy, ego_t, clear_xy=clear_xy)
     np.savez_compressed(out / "scene3d.npz", **s3.to_npz())
     cam_light, aer_light = lightings(r_light)
     ang = r_aerial.uniform(0, 2 * np.pi)
