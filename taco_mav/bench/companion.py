@@ -2,11 +2,12 @@
 
 A flat synthetic world (`build_world`, seed `SEED`) is played by the autopilot simulator (`taco_mav.sim.Simulator`,
 in this process, real time, GNSS denied after the start-up fix, no SIMSTATE unasked: a real autopilot has no true
-pose to stream) to the daemon run as a user runs it: a separate process, `python -m taco_mav.cli run --profile ardupilot_rover --estimator taco+ --log-dir ...` (the classical
-matcher, camera speed on, GPS_INPUT at 5 Hz), its camera a 30 fps MJPG video file (OpenCV `VideoSource`, the path
-a USB camera takes) rendered beforehand at the drive's true poses with the profile's camera model, its map the
-world's GeoTIFF. The daemon connects out (`udpout:`, as to SITL) so its first HEARTBEAT, sent when it has opened
-its camera, starts the simulator's playback: the video runs 0.05-0.1 s ahead of the drive (measured).
+pose to stream) to the daemon run as a user runs it, a separate process: `python -m taco_mav.cli run --profile
+ardupilot_rover --estimator taco+ --log-dir ...` (the classical matcher, camera speed on, GPS_INPUT at 5 Hz), its
+camera a 30 fps MJPG video file (OpenCV `VideoSource`, the path a USB camera takes) rendered beforehand at the
+drive's true poses with the profile's camera model, its map the world's GeoTIFF. The daemon connects out
+(`udpout:`, as to SITL), so its first HEARTBEAT, sent once it has opened its camera, starts the playback: the
+video runs 0.02-0.08 s ahead of the drive (measured).
 
 Measured from /proc (Linux): the daemon's CPU time (user + system, all threads) over the mission (from the first
 played sample to the end of the drive) divided by its wall time, and its peak resident set (VmHWM) at the end.
@@ -31,7 +32,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -94,27 +94,26 @@ def _events(log_dir: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for f in files for line in f.read_text().splitlines() if line.strip()]
 
 
-def daemon_command(connect: str, video: Path, mosaic: Path, log_dir: Path) -> list[str]:
+def daemon_command(connect: str, video: Path, mosaic: Path, log_dir: Path, profile: str = PROFILE) -> list[str]:
     """`taco-mav run` as a user starts it (the profile's matcher and output; taco+ with camera speed)."""
-    return [sys.executable, "-m", "taco_mav.cli", "-q", "run", "--profile", PROFILE, "--connect", connect,
+    return [sys.executable, "-m", "taco_mav.cli", "-q", "run", "--profile", profile, "--connect", connect,
             "--camera", str(video), "--map", str(mosaic), "--estimator", "taco+", "--log-dir", str(log_dir)]
 
 
-def measure(tmp: Path, mission_s: float = MISSION_S, command: Sequence[str] | None = None) -> dict[str, float]:
+def measure(tmp: Path, mission_s: float = MISSION_S, profile: str = PROFILE) -> dict[str, float]:
     """Build the world and the video in `tmp`, play the mission to a daemon process, return the keys (module
-    docstring). command: the daemon's command line instead of `daemon_command`'s (profiling)."""
+    docstring). profile: the daemon's `--profile` (a name or a YAML file: what a knob saves, docs/companion.md)."""
     from taco_mav.datasets.synthetic import build_world
     from taco_mav.sim import Simulator
 
     world = build_world(tmp / "world", seed=SEED, length_km=LENGTH_KM, progress=False, realism="flat")
-    video = render_video(world, tmp / "camera.avi", mission_s + 5.0)
+    video = render_video(world, tmp / "camera.avi", mission_s + 5.0, profile=profile)
     port = free_udp_port()
     sim = Simulator(world, f"udpin:127.0.0.1:{port}", speed=1.0, duration_s=mission_s, wait_companion_s=300.0,
                     drain_s=0.5, pose_stream=False)
     log_dir = tmp / "logs"
     log_dir.mkdir()
-    cmd = list(command) if command is not None else daemon_command(f"udpout:127.0.0.1:{port}", video,
-                                                                    world / "mosaic.tif", log_dir)
+    cmd = daemon_command(f"udpout:127.0.0.1:{port}", video, world / "mosaic.tif", log_dir, profile)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
         [str(Path(taco_mav.__file__).resolve().parents[1]), *filter(None, [os.environ.get("PYTHONPATH")])])}
     sim.start()
@@ -162,6 +161,7 @@ def companion_budget(mission_s: float = MISSION_S) -> dict[str, float]:
         return measure(Path(tmp), mission_s)
 
 
-if __name__ == "__main__":  # pragma: no cover - `python -m taco_mav.bench.companion`: this section's keys alone
+if __name__ == "__main__":  # pragma: no cover - `python -m taco_mav.bench.companion [PROFILE]`: these keys alone
     logging.basicConfig(level=logging.INFO)
-    print(json.dumps(companion_budget(float(sys.argv[1]) if len(sys.argv) > 1 else MISSION_S), indent=2))
+    with tempfile.TemporaryDirectory() as tmp_dir:
+        print(json.dumps(measure(Path(tmp_dir), profile=sys.argv[1] if len(sys.argv) > 1 else PROFILE), indent=2))
