@@ -96,9 +96,10 @@ class VideoSource:
     consumer uses a few frames a second of a 30 fps camera (fixes, camera speed, recording), so the grab thread
     does not decode or convert the rest. An MJPEG stream (a USB camera's usual format, an MJPG video file) is
     read undecoded where OpenCV can hand over its JPEG frames (the V4L2 backend with CONVERT_RGB off, the FFmpeg
-    backend with CAP_PROP_FORMAT -1) and each frame asked for is decoded with `cv2.imdecode`, which is what
-    OpenCV's V4L2 backend decodes MJPEG with; anything else is decoded as it is grabbed, as before. A JPEG that
-    does not decode is a `FrameRejected("corrupt_frame")`. `encoded`: whether frames are kept undecoded."""
+    backend with CAP_PROP_FORMAT -1; a GStreamer pipeline ending in image/jpeg hands them over encoded by itself)
+    and each frame asked for is decoded with `cv2.imdecode`, which is what OpenCV's V4L2 backend decodes MJPEG
+    with; anything else is decoded as it is grabbed, as before. A JPEG that does not decode is a
+    `FrameRejected("corrupt_frame")`. `encoded`: whether frames are kept undecoded."""
 
     clock = ClockDomain.COMPANION
     needs_pose = False
@@ -168,6 +169,7 @@ class VideoSource:
             with self._lock:
                 self._frames.append((t, frame))
             self.grabbed += 1
+            self.encoded = self.encoded or (frame.ndim == 2 and frame.shape[0] == 1)  # GStreamer's image/jpeg too
             if period:
                 next_t += period
                 self._stop.wait(max(0.0, next_t - self._clock()))
