@@ -77,6 +77,48 @@ def test_video_source_file(tmp_path: Path) -> None:
     assert got[1][0, 0, 0] > 150  # the last frame is the reddest, RGB order
 
 
+def _mjpg(path: Path, frames: int = 10, fps: float = 50.0) -> Path:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (32, 24))
+    if not writer.isOpened():
+        pytest.skip("OpenCV build cannot write MJPG")
+    for i in range(frames):
+        writer.write(np.full((24, 32, 3), (0, 0, 20 * i), np.uint8))
+    writer.release()
+    return path
+
+
+def test_mjpeg_video_is_decoded_only_when_asked(tmp_path: Path) -> None:
+    """An MJPEG file is grabbed undecoded (JPEG bytes in the ring, as a USB camera's MJPEG stream) and only the
+    frame asked for is decoded: the same picture as OpenCV decoding every frame (within JPEG decoders' rounding)."""
+    path = _mjpg(tmp_path / "clip.avi")
+    src = VideoSource(str(path))
+    src.start()
+    deadline = time.monotonic() + 5.0
+    while src.grabbed < 10 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    src.close()
+    if not src.encoded:
+        pytest.skip("this OpenCV's FFmpeg backend does not hand over MJPEG frames undecoded")
+    assert src.grabbed == 10 and all(f.ndim == 2 and f.shape[0] == 1 for _, f in src._frames)
+    t_last = src._frames[-1][0]
+    got = src.frame_near(t_last, 0.001)
+    assert got is not None and got[0] == t_last and got[1].shape == (24, 32, 3)
+    cap = cv2.VideoCapture(str(path))
+    for _ in range(10):
+        bgr = cap.read()[1]
+    cap.release()
+    assert np.abs(got[1].astype(int) - bgr[..., ::-1]).max() <= 16  # RGB order, the last (reddest) frame
+    assert src.frame_near(t_last, 0.001) is got  # asked again (another consumer): decoded once
+
+
+def test_corrupt_jpeg_from_the_camera_is_a_corrupt_frame() -> None:
+    from taco_mav.camera.sources import FrameRejected, _to_rgb
+
+    with pytest.raises(FrameRejected) as exc:
+        _to_rgb(np.frombuffer(b"\xff\xd8\xff garbage", np.uint8)[np.newaxis])
+    assert exc.value.reason == "corrupt_frame"
+
+
 def test_video_source_unopenable() -> None:
     with pytest.raises(ConfigError):
         VideoSource("/nonexistent/clip.avi").start()

@@ -275,3 +275,11 @@ def test_cli_sim_writes_results(kitti_root: Path, tmp_path: Path) -> None:
     assert seq["ate_m"] < 2.0 and seq["gps_input_count"] >= 25
     assert doc["summary"]["median_ate_m"] == pytest.approx(seq["ate_m"])
     assert doc["config"]["simulator"]["speed"] == 10.0
+
+
+def test_no_true_pose_unasked_with_pose_stream_off() -> None:
+    """pose_stream False (the companion budget's autopilot, as a real one): no SIMSTATE unless a companion asks
+    for it; the IMU and the rest stream as before."""
+    sim, comp, _ = _run_echo(_line_drive(n=101), lockstep=False, pose_stream=False)
+    assert "SIMSTATE" not in comp.received and "SIMSTATE" not in sim.sent_counts
+    assert len(comp.received["RAW_IMU"]) == 101 and comp.received["GPS2_RAW"]

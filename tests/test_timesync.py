@@ -59,3 +59,21 @@ def test_fallbacks_and_priority() -> None:
     assert cm.source == "system_time"
     cm.reset()
     assert cm.source is None
+
+
+def test_theil_sen_slope_is_scipys() -> None:
+    """The loop's own Theil-Sen slope (ClockRate, 10 Hz) gives scipy.stats.theilslopes' numbers exactly, ties
+    in x included."""
+    import numpy as np
+    from scipy import stats
+
+    from taco_mav.mavlink.timesync import theil_sen_slope
+
+    rng = np.random.default_rng(3)
+    for n in (3, 4, 17, 50):
+        for k in range(20):
+            x = np.sort(rng.uniform(0.0, 5.0, n))
+            if k % 2:
+                x = np.round(x, 1)  # repeated x: those pairs are left out, as scipy does
+            y = 1.02 * x + rng.normal(0.0, 0.01, n)
+            assert theil_sen_slope(y, x) == stats.theilslopes(y, x).slope

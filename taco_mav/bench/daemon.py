@@ -26,6 +26,11 @@ Recording (issue 30): the live path again with a real camera path, a 30 fps vide
 size read by OpenCV (`VideoSource`), first without then with `--record` (5 Hz JPEGs into a temporary session
 folder). Keys: gps_input_interval_p99_ms_camera, gps_input_interval_p99_ms_recording, and their difference,
 recording_interval_p99_delta_ms (what recording costs the output's timing); recording_frames kept.
+
+Companion budget (issue 31, `taco_mav.bench.companion`): `taco-mav run` as a separate process (ardupilot_rover,
+taco+, classical matcher, camera speed, 5 Hz GPS_INPUT) with a 30 fps MJPG video as its camera, over a 65 s
+simulated mission: daemon_cpu_cores (CPU time / wall time, target <= 0.1 of one x86 core) and daemon_rss_mb (peak
+RSS, target <= 250 MB), with what the mission did beside them (daemon_budget_*, daemon_startup_cpu_s).
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
+from taco_mav.bench.companion import companion_budget  # noqa: E402
 from taco_mav.bench.fusion import _drive as _weaving_drive  # noqa: E402
 from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.core import ukf_kernels  # noqa: E402
@@ -227,6 +233,7 @@ def run(progress: bool = True) -> dict[str, float]:
         out.update(gps_input_rate_autopilot_hz_1x=rate_1x, gps_input_rate_autopilot_hz_5x=rate_5x,
                    gps_input_interval_p99_ms_5x=round(float(np.percentile(np.diff(fast[2:]) * 1e3, 99)), 2))
     out.update(recording_cost())
+    out.update(companion_budget())
     log.info("daemon bench: %s (%d IMU samples, %d GPS_INPUT, fixes %s)", out, len(lat_ms), len(arrivals),
              dict(daemon.stats.fixes))
     return out

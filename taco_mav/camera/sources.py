@@ -90,7 +90,16 @@ class CameraSource(Protocol):
 
 class VideoSource:
     """OpenCV VideoCapture in a thread; the last `ring` frames are kept with their grab time (companion clock).
-    Files are paced at their frame rate; devices and streams are reopened after failures (1 s back-off)."""
+    Files are paced at their frame rate; devices and streams are reopened after failures (1 s back-off).
+
+    Frames are kept as they come and converted (and, for MJPEG, decoded) only when asked for (`frame_near`): a
+    consumer uses a few frames a second of a 30 fps camera (fixes, camera speed, recording), so the grab thread
+    does not decode or convert the rest. An MJPEG stream (a USB camera's usual format, an MJPG video file) is
+    read undecoded where OpenCV can hand over its JPEG frames (the V4L2 backend with CONVERT_RGB off, the FFmpeg
+    backend with CAP_PROP_FORMAT -1; a GStreamer pipeline ending in image/jpeg hands them over encoded by itself)
+    and each frame asked for is decoded with `cv2.imdecode`, which is what OpenCV's V4L2 backend decodes MJPEG
+    with; anything else is decoded as it is grabbed, as before. A JPEG that does not decode is a
+    `FrameRejected("corrupt_frame")`. `encoded`: whether frames are kept undecoded."""
 
     clock = ClockDomain.COMPANION
     needs_pose = False
@@ -100,6 +109,7 @@ class VideoSource:
     def __init__(self, spec: str, ring: int = 30, clock=time.monotonic) -> None:
         self.spec = spec
         self._clock = clock
+        # (grab time, frame as grabbed: BGR or grey image, or JPEG bytes (1, N) uint8)
         self._frames: deque[tuple[float, np.ndarray]] = deque(maxlen=ring)
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -107,14 +117,19 @@ class VideoSource:
         self.is_file = Path(spec).is_file()
         self.grabbed = 0
         self.failures = 0
+        self.encoded = False
         self._size: tuple[int, int] | None = None
+        self._decoded: tuple[float, np.ndarray] | None = None  # the last frame handed out (consumers share it)
 
     def _open(self) -> cv2.VideoCapture:
         if self.spec.isdigit():
-            return cv2.VideoCapture(int(self.spec))
-        if "!" in self.spec:
-            return cv2.VideoCapture(self.spec, cv2.CAP_GSTREAMER)
-        return cv2.VideoCapture(self.spec)
+            cap = cv2.VideoCapture(int(self.spec))
+        elif "!" in self.spec:
+            cap = cv2.VideoCapture(self.spec, cv2.CAP_GSTREAMER)
+        else:
+            cap = cv2.VideoCapture(self.spec)
+        self.encoded = cap.isOpened() and _keep_jpeg(cap)
+        return cap
 
     def start(self) -> None:
         cap = self._open()
@@ -123,6 +138,8 @@ class VideoSource:
         self._cap = cap
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH) or 0), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)
         self._size = (w, h) if w > 0 and h > 0 else None  # some backends tell only after the first frame
+        log.info("camera %s: %s, %s", self.spec, f"{w}x{h} px" if self._size else "size unknown",
+                 "MJPEG kept undecoded until used" if self.encoded else "decoded as grabbed")
         self._thread.start()
 
     def frame_size(self) -> tuple[int, int] | None:
@@ -136,9 +153,9 @@ class VideoSource:
             period = 1.0 / fps if fps and math.isfinite(fps) and fps > 0 else 0.1
         next_t = self._clock()
         while not self._stop.is_set():
-            ok, bgr = cap.read()
+            ok, frame = cap.read()
             t = self._clock()
-            if not ok or bgr is None:
+            if not ok or frame is None or frame.size == 0:
                 self.failures += 1
                 cap.release()
                 if self.is_file:
@@ -149,26 +166,60 @@ class VideoSource:
                     return
                 cap = self._open()
                 continue
-            rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB) if bgr.ndim == 3 else cv2.cvtColor(bgr, cv2.COLOR_GRAY2RGB)
             with self._lock:
-                self._frames.append((t, rgb))
+                self._frames.append((t, frame))
             self.grabbed += 1
+            self.encoded = self.encoded or (frame.ndim == 2 and frame.shape[0] == 1)  # GStreamer's image/jpeg too
             if period:
                 next_t += period
                 self._stop.wait(max(0.0, next_t - self._clock()))
         cap.release()
 
     def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
+        """(grab time, RGB uint8 (H, W, 3)) of the kept frame nearest t, or None when none is within max_gap_s;
+        FrameRejected("corrupt_frame") for a JPEG that does not decode."""
         with self._lock:
             if not self._frames:
                 return None
-            best = min(self._frames, key=lambda f: abs(f[0] - t))
-        return best if abs(best[0] - t) <= max_gap_s else None
+            best_t, raw = min(self._frames, key=lambda f: abs(f[0] - t))
+            done = self._decoded
+        if abs(best_t - t) > max_gap_s:
+            return None
+        if done is not None and done[0] == best_t:
+            return done
+        out = (best_t, _to_rgb(raw))
+        with self._lock:
+            self._decoded = out
+        return out
 
     def close(self) -> None:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(2.0)
+
+
+def _keep_jpeg(cap: cv2.VideoCapture) -> bool:
+    """Ask an MJPEG capture for its frames undecoded (JPEG bytes); True when the backend agreed. Backends
+    other than V4L2 and FFmpeg, and other codecs, are left decoding as they grab."""
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC) or 0)
+    if fourcc != cv2.VideoWriter_fourcc(*"MJPG"):
+        return False
+    backend = cap.getBackendName()
+    if backend == "V4L2":
+        return bool(cap.set(cv2.CAP_PROP_CONVERT_RGB, 0))
+    if backend == "FFMPEG":
+        return bool(cap.set(cv2.CAP_PROP_FORMAT, -1))
+    return False
+
+
+def _to_rgb(frame: np.ndarray) -> np.ndarray:
+    """A grabbed frame (BGR or grey image, or JPEG bytes as one row of uint8) as RGB uint8 (H, W, 3)."""
+    if frame.ndim == 2 and frame.shape[0] == 1:  # an undecoded MJPEG frame
+        bgr = cv2.imdecode(frame, cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise FrameRejected("corrupt_frame", "a JPEG frame from the camera does not decode")
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB) if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2RGB)
 
 
 class FolderSource:
@@ -295,10 +346,11 @@ class FrameGuard:
                                              f"({self.height}, {self.width}, 3){scaled} uint8")
         if float(img[::4, ::4].std()) < self.min_std:
             raise FrameRejected("blank_frame", f"mean grey {float(img[::4, ::4].mean()):.0f}")
-        crc = zlib.crc32(np.ascontiguousarray(img).data)
-        last, self._last = self._last, (t_frame, crc)
-        if self.check_frozen and last is not None and last[1] == crc and last[0] != t_frame:
-            raise FrameRejected("frozen_frame", f"identical to the frame at {last[0]:.3f} s")
+        if self.check_frozen:  # a CRC of all pixels: only where it is compared
+            crc = zlib.crc32(np.ascontiguousarray(img).data)
+            last, self._last = self._last, (t_frame, crc)
+            if last is not None and last[1] == crc and last[0] != t_frame:
+                raise FrameRejected("frozen_frame", f"identical to the frame at {last[0]:.3f} s")
         if self.rectifier is not None:
             img = self.rectifier(img)
         if self.horizon is not None:

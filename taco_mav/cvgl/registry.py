@@ -5,11 +5,15 @@ Implementations are imported lazily so that, e.g., torch is only needed when the
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import MATCHERS, Profile, frd_fwd_left
 from taco_mav.cvgl.base import Matcher
-from taco_mav.cvgl.emulator import TruthFn
 from taco_mav.errors import ConfigError, MatcherError
+
+if TYPE_CHECKING:  # the emulator module loads only for the emulator (a vehicle's run never needs it)
+    from taco_mav.cvgl.emulator import TruthFn
 
 __all__ = ["MATCHERS", "make_matcher"]
 

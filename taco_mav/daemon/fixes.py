@@ -171,10 +171,11 @@ class FixPipeline:
         self.worker.start()
 
     def on_pose(self, t: float, pose: SimPose, origin: encoders.Origin | None) -> None:
-        """SIMSTATE true pose at autopilot time t (s): drives a world camera and the emulator's truth."""
+        """SIMSTATE true pose at autopilot time t (s): drives a world camera and the emulator's truth (kept only
+        for the emulator: a simulator streams SIMSTATE at its data rate, 100 Hz, to a real camera's run too)."""
         if self.camera is not None and self.camera.needs_pose:
             self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)  # type: ignore[attr-defined]
-        if origin is not None:
+        if origin is not None and self.profile.matcher == "emulator":
             e, n = origin.projector.to_utm(pose.lat, pose.lon)
             theta = math.pi / 2 - pose.yaw + origin.convergence
             with self._truth_lock:

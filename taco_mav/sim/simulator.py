@@ -71,7 +71,9 @@ class SimOptions:
     spoof_jump_m / spoof_bearing_deg: spoofing (receiver.py); home: (lat, lon, alt m AMSL) for HOME_POSITION and
     GPS_GLOBAL_ORIGIN (None: the drive's start), send_home False: neither is ever sent; wait_companion_s: how
     long to wait for the companion's HEARTBEAT before playing anyway; drain_s: wall seconds to keep listening
-    after the drive ends; boot_offset_s: autopilot uptime when the simulator starts."""
+    after the drive ends; boot_offset_s: autopilot uptime when the simulator starts; pose_stream: SIMSTATE (the
+    true pose) at the data rate unasked (False: only once a companion asks for it, as an autopilot that has no
+    true pose to give, e.g. to measure what a run with a real camera costs, `taco_mav.bench.companion`)."""
 
     speed: float = 1.0
     deny_after_s: float = 1.0
@@ -92,6 +94,7 @@ class SimOptions:
     wait_companion_s: float = 30.0
     drain_s: float = 1.0
     boot_offset_s: float = 5.0
+    pose_stream: bool = True
     # one 5 Hz output period; the microsecond lets a companion whose grid is float-rounded past it still fire
     lockstep_lead_s: float = 0.200001
     # wall seconds to wait for a late GPS_INPUT: long enough for a companion stalled by a loaded machine (a
@@ -252,6 +255,8 @@ class Simulator:
     def _interval(self, msg_id: int) -> float:
         asked = self.services.intervals.get(msg_id)
         if asked is None or asked == 0.0:
+            if msg_id == M.MAVLINK_MSG_ID_SIMSTATE and not self.options.pose_stream:
+                return -1.0 if asked is None else 0.0  # off until asked for; asked with 0: the data rate
             return DEFAULT_INTERVALS[msg_id]
         return asked
 
