@@ -22,10 +22,13 @@ from taco_mav.mavlink.connection import free_udp_port
 from taco_mav.mavlink.encoders import Origin
 
 # What a run with a video or a device camera, the classical matcher and a GeoTIFF never uses: the FG2 matcher and
-# torch, plotting, the simulation renderers (world: cameras), the offline evaluation and the simulator.
+# torch, plotting, the simulation renderers (world: cameras), the offline evaluation and the simulator, the offline
+# smoother's gtsam and scipy.signal / scipy.spatial, scipy.stats (the GNSS guard's chi2 loads it only once a real
+# receiver is read) and filterpy (the UKF computes its sigma-point weights by filterpy's arithmetic).
 NEVER_LOADED = ("torch", "matplotlib", "moderngl", "pandas", "taco_mav.cvgl.fg2", "taco_mav.cvgl.emulator",
                 "taco_mav.evaluation", "taco_mav.sim", "taco_mav.datasets.synthetic.render",
-                "taco_mav.datasets.synthetic.render3d", "taco_mav.datasets.synthetic.world3d")
+                "taco_mav.datasets.synthetic.render3d", "taco_mav.datasets.synthetic.world3d", "gtsam", "filterpy",
+                "scipy.stats", "scipy.signal", "scipy.spatial")
 
 
 def _imported(stderr: str) -> set[str]:

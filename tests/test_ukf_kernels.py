@@ -228,3 +228,15 @@ def test_read_only_install_without_a_cache_folder_still_imports_and_runs(tmp_pat
     assert "cache False" in proc.stdout
     assert abs(float(proc.stdout.split("wrap")[1]) - (4.0 - 2 * np.pi)) < 1e-12
     assert "NUMBA_CACHE_DIR" in proc.stderr
+
+
+def test_sigma_point_weights_are_filterpys() -> None:
+    """ukf.merwe_weights (the daemon does not import filterpy: it loads scipy.stats) against filterpy's
+    MerweScaledSigmaPoints, to the bit, for every state size and a spread of alpha, beta, kappa."""
+    from taco_mav.core.ukf import merwe_weights
+
+    for n in (3, 5, 6, 8):
+        for alpha, beta, kappa in ((1e-3, 2.0, 0.0), (0.5, 2.0, 1.0), (1.0, 0.0, 3.0 - n)):
+            ref = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa)
+            wm, wc = merwe_weights(n, alpha, beta, kappa)
+            assert np.array_equal(wm, ref.Wm) and np.array_equal(wc, ref.Wc), (n, alpha, beta, kappa)

@@ -13,10 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-import gtsam
 import numpy as np
-from scipy.signal import savgol_filter
-from scipy.spatial import cKDTree
 
 from taco_mav.core.params import SmootherParams
 
@@ -46,6 +43,8 @@ def loop_closure_pairs(fixes: Sequence[FixNode], path_cum: np.ndarray, max_chord
     path_cum: (N,) cumulative odometry path length at each node, metres."""
     if len(fixes) < 2:
         return []
+    from scipy.spatial import cKDTree  # offline only: the live daemon never smooths and never loads it
+
     pts = np.array([f.xy for f in fixes])
     pairs = []
     for a, b in sorted(cKDTree(pts).query_pairs(max_chord_m)):
@@ -65,6 +64,9 @@ def smooth(initial: np.ndarray, increments: np.ndarray, odo_sigmas: np.ndarray, 
     """Optimise the Pose2 graph. initial: (N, 3) node poses (the online UKF estimates); increments: (N-1, 3)
     body increments (forward m, left m, dtheta rad) between consecutive nodes; odo_sigmas: (N-1,) isotropic
     odometry sigmas, 1/2 (sigma_fwd + sigma_lat) of the frame's process noise, metres."""
+    import gtsam  # offline only: the live daemon never smooths and never loads it (~40 MB)
+    from scipy.signal import savgol_filter
+
     initial = np.asarray(initial, dtype=float)
     n = len(initial)
     if n == 0:

@@ -10,7 +10,9 @@ nearest positive-definite matrix (eigenvalue floor), so Cholesky in the next pre
 
 Speed (issue 18): predict and the updates run as compiled kernels (`ukf_kernels`, numba) that do exactly the
 operations of filterpy's predict and of `joseph_update_reference`, bit for bit; the filter keeps x and P as
-plain arrays (filterpy only supplies the sigma-point weights).
+plain arrays. The sigma-point weights are filterpy's `MerweScaledSigmaPoints` weights, computed here by the same
+arithmetic (`merwe_weights`): importing filterpy.kalman loads scipy.stats, about 55 MB a companion computer's
+daemon never otherwise uses (issue 31); tests/test_ukf_kernels.py holds the filter to filterpy bit for bit.
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints
 
 from taco_mav.core import ukf_kernels as _k
 from taco_mav.core.preintegration import wrap_angle as _wrap
@@ -107,6 +108,18 @@ def _rows(n: int, *cols: int) -> np.ndarray:
     return H
 
 
+def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Wm, Wc), each (2 n + 1,): van der Merwe's scaled sigma-point weights for the mean and the covariance of an
+    n-state filter, by filterpy's arithmetic (MerweScaledSigmaPoints._compute_weights), to the bit."""
+    lambda_ = alpha**2 * (n + kappa) - n
+    c = 0.5 / (n + lambda_)
+    Wc = np.full(2 * n + 1, c)
+    Wm = np.full(2 * n + 1, c)
+    Wc[0] = lambda_ / (n + lambda_) + (1 - alpha**2 + beta)
+    Wm[0] = lambda_ / (n + lambda_)
+    return Wm, Wc
+
+
 class PlanarUkf:
     """The TACO filter. x: (3,) [x m, y m, theta rad]; P: (3, 3). taco+ passes a (5,) x0 that adds the
     forward speed error dv (m/s, true minus preintegrated) and the forward accelerometer bias b (m/s^2), or a
@@ -118,8 +131,7 @@ class PlanarUkf:
         if n not in (3, 5, 6, 8) or np.shape(P0) != (n, n):
             raise ValueError(f"PlanarUkf: state must be 3, 5, 6 or 8 long with a matching P, got {n} and "
                              f"{np.shape(P0)}")
-        points = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa, subtract=_residual_x)
-        self._Wm, self._Wc = points.Wm, points.Wc
+        self._Wm, self._Wc = merwe_weights(n, alpha, beta, kappa)
         self._lam_n = (alpha**2 * (n + kappa) - n) + n  # filterpy: (lambda_ + n) scales P before the Cholesky
         self._x = np.asarray(x0, dtype=float).copy()
         self._P = nearest_pd(np.asarray(P0, dtype=float))
