@@ -43,8 +43,8 @@ def test_square_mission_on_a_3d_world_with_the_shipped_profile(tmp_path):
     """Issue 31: the camera sees a 3-D world (facades, trees, cars, another day's aerial map georeferenced ~1 m
     off; the square kept clear of buildings), the daemon runs the shipped `ardupilot_rover` profile as a user
     would. Before its map-error model: 2 fixes accepted, lock lost by count of weak answers, EKF failsafe 70 s into
-    the mission. With it: EKF3 1.03-1.31 m RMS over two runs (docs/sitl.md; on cores loaded by other missions the
-    daemon can fall behind and the bounds fail: one run at load average 6-8, 8.7 m)."""
+    the mission. With it: EKF3 0.96-1.31 m RMS over three runs (docs/sitl.md; on cores loaded by other missions
+    the daemon can fall behind and the bounds fail: one run at load average 6-8, 8.7 m)."""
     spec = MissionSpec(setup="solo", realism="3d")
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     assert res["mission_completed"], res

@@ -278,15 +278,16 @@ def test_nothing_stands_on_a_keep_clear_path(tmp_path: Path) -> None:
     from taco_mav.geo import UtmProjector
 
     proj = UtmProjector(meta["crs_epsg"])
+    lat0, lon0 = -35.363261, 149.165230
     e0, n0 = meta["centre_utm"]
     r = 6378137.0
-    corners = np.array([np.subtract(proj.to_utm(-35.363261 + math.degrees(n / r),
-                                                149.165230 + math.degrees(e / (r * math.cos(math.radians(-35.363261))))),
-                                    (e0, n0)) for e, n in square])
+    ll = [(lat0 + math.degrees(n / r), lon0 + math.degrees(e / (r * math.cos(math.radians(lat0))))) for e, n in square]
+    corners = np.array([np.subtract(proj.to_utm(lat, lon), (e0, n0)) for lat, lon in ll])
     path = np.vstack([a + (b - a) * np.linspace(0, 1, 121)[:, None] for a, b in itertools.pairwise(corners)])
     with np.load(w / "scene3d.npz") as z:
         s3 = Scene3D.from_npz(z)
-    low = np.vstack([m.pos[(m.pos[:, 2] < 2.0) & (m.mat != Mat.CONTACT_SHADOW)] for m in (s3.static, s3.parked["camera"])])
+    meshes = (s3.static, s3.parked["camera"])
+    low = np.vstack([m.pos[(m.pos[:, 2] < 2.0) & (m.mat != Mat.CONTACT_SHADOW)] for m in meshes])
     tree = cKDTree(path)
     assert tree.query(low[:, :2])[0].min() > 1.5
     # walls: points spread over each wall triangle (pos holds 3 vertices per triangle), not only its corners
