@@ -20,8 +20,6 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from taco_mav.camera.sources import FrameGuard, FrameRejected
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
@@ -56,8 +54,11 @@ class MotionPipeline:
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         cam = fixes.ground_camera
         self.motion = GroundMotion(cam, ego_rows=fixes.profile.classical.ego_mask_rows)
+        # frames undistorted as for fixes; a real (noisy) camera never gives the same picture twice: a repeat is a
+        # hung driver, whose frames would read as a stop (a noiseless renderer repeats itself legitimately)
+        source = fixes.camera
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
-                                check_frozen=False, rectifier=fixes.rectifier)  # frames undistorted as for fixes
+                                check_frozen=source is not None and not source.noiseless, rectifier=fixes.rectifier)
         self.counts: Counter[str] = Counter()
         self.headings = HeadingHistory()
         self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)
@@ -137,9 +138,6 @@ class MotionPipeline:
         a, b = f0(), f1()
         if b.t - a.t < 0.5 * MIN_GAP_S:
             return "same_frame"
-        cam = self.fixes.camera
-        if cam is not None and not cam.noiseless and np.array_equal(a.image, b.image):
-            return "frozen_frame"  # a real sensor never gives two identical frames: its driver hung
         dtheta = self.headings.change(a.t, b.t)
         if dtheta is None:
             return "no_heading"
