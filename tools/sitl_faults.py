@@ -23,6 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from taco_mav.daemon.eventlog import read_events
+
 KINDS = ("camera", "stall", "link", "glitch", "spoof")
 CAMERA_FREEZE_S = CAMERA_BLACK_S = 10.0
 STALL_S = 30.0
@@ -193,18 +195,13 @@ def daemon_summary(daemon_dir: Path) -> dict[str, Any]:
     rejected or re-accepted the receiver."""
     stats: dict[str, Any] = {}
     kinds: dict[str, int] = {}
-    for path in sorted(Path(daemon_dir).glob("*/events.jsonl")):
-        for line in path.read_text().splitlines():
-            try:
-                e = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            kind = e.get("event")
-            if kind == "stats":
-                stats = e
-            elif kind in ("gnss_rejected", "gnss_accepted_again", "gnss_lost", "lock"):
-                key = kind if kind != "lock" else f"lock_{e.get('kind')}"
-                kinds[key] = kinds.get(key, 0) + 1
+    for e in read_events(daemon_dir):
+        kind = e.get("event")
+        if kind == "stats":
+            stats = e
+        elif kind in ("gnss_rejected", "gnss_accepted_again", "gnss_lost", "lock"):
+            key = kind if kind != "lock" else f"lock_{e.get('kind')}"
+            kinds[key] = kinds.get(key, 0) + 1
     return {"daemon_fixes": stats.get("fixes", {}), "daemon_camera_motion": stats.get("camera_motion", {}),
             "daemon_link_outages": stats.get("link_outages"),
             "daemon_stuck_matchers": stats.get("stuck_matchers"), "daemon_events": kinds}

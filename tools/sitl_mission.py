@@ -40,6 +40,8 @@ os.environ.setdefault("MAVLINK20", "1")
 import numpy as np  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
+from taco_mav.daemon.eventlog import read_events  # noqa: E402
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sitl_faults import KINDS as FAULT_KINDS  # noqa: E402
 from sitl_faults import FaultRun  # noqa: E402
@@ -557,9 +559,7 @@ def shadow_score(daemon_dir: Path, spec: Any, truth_kind: str = "SIMSTATE", trut
     """`--shadow` figures: the `shadow` events' gnss_err_m (the GNSS-free twin's distance to the receiver) beside
     the twin's true error (its lat, lon against the truth in the daemon's tlog at the event's wall time); none
     without shadow events."""
-    events = [json.loads(line) for path in sorted(Path(daemon_dir).glob("*/events.jsonl"))
-              for line in path.read_text().splitlines() if '"shadow"' in line]
-    events = [e for e in events if e.get("event") == "shadow"]
+    events = [e for e in read_events(daemon_dir) if e.get("event") == "shadow"]
     if not events:
         return {}
     lat0, lon0 = spec.home[0], spec.home[1]

@@ -33,9 +33,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import taco_mav
+from taco_mav.daemon.eventlog import read_events
 from taco_mav.mavlink.connection import free_udp_port
 
 log = logging.getLogger(__name__)
@@ -88,12 +88,6 @@ def render_video(world: Path, path: Path, seconds: float, fps: float = VIDEO_FPS
     return path
 
 
-def _events(log_dir: Path) -> list[dict[str, Any]]:
-    """The daemon's events.jsonl (its one session folder under log_dir)."""
-    files = sorted(log_dir.glob("*/events.jsonl"))
-    return [json.loads(line) for f in files for line in f.read_text().splitlines() if line.strip()]
-
-
 def daemon_command(connect: str, video: Path, mosaic: Path, log_dir: Path, profile: str = PROFILE) -> list[str]:
     """`taco-mav run` as a user starts it (the profile's matcher and output; taco+ with camera speed)."""
     return [sys.executable, "-m", "taco_mav.cli", "-q", "run", "--profile", profile, "--connect", connect,
@@ -140,7 +134,7 @@ def measure(tmp: Path, mission_s: float = MISSION_S, profile: str = PROFILE) -> 
         sim.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"daemon exited with {proc.returncode}: {err[-2000:]}")
-    events = _events(log_dir)
+    events = read_events(log_dir)
     fixes = [e for e in events if e["event"] == "fix"]
     stop = next((e for e in events if e["event"] == "stop"), {})
     motion = (stop.get("stats") or {}).get("camera_motion") or {}

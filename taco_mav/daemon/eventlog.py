@@ -1,5 +1,6 @@
 """JSONL event log of the daemon: one JSON object per line ({"t_wall": unix s, "event": name, ...}),
-flushed at least every `flush_s` seconds and on close. numpy values are written as plain numbers/lists."""
+flushed at least every `flush_s` seconds and on close. numpy values are written as plain numbers/lists.
+`read_events` reads the logs of every session under a --log-dir back."""
 
 from __future__ import annotations
 
@@ -38,3 +39,18 @@ class EventLog(AppendLog):
             return
         line = json.dumps({"t_wall": round(time.time(), 6), "event": event, **_plain(fields)}, allow_nan=False)
         self.append(line + "\n")
+
+
+def read_events(log_root: str | Path) -> list[dict[str, Any]]:
+    """Every event of every session under a --log-dir (`log_root/<UTC start>/events.jsonl`, sessions in start
+    order), as written; a line that is not a JSON object (cut short when a process was killed) is skipped."""
+    out: list[dict[str, Any]] = []
+    for path in sorted(Path(log_root).glob("*/events.jsonl")):
+        for line in path.read_text().splitlines():
+            try:
+                event = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(event, dict):
+                out.append(event)
+    return out
