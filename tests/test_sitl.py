@@ -58,7 +58,7 @@ def test_paper_mode_never_runs_away(tmp_path):
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     # paper mode's honest 1-sigma (about 6 m) is refused by EKF3's gates, or it completes: never a runaway
     assert res["true_speed_max_mps"] is None or res["true_speed_max_mps"] <= 1.5 * spec.wp_speed, res
-    assert res.get("verdict") != "runaway_stopped", res
+    assert res.get("verdict") not in ("runaway_stopped", "ekf_never_ready"), res  # never ready: the logs' tails say why
 
 
 def test_daemon_restarted_mid_mission_keeps_the_rover_on_track(tmp_path):

@@ -44,7 +44,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sitl_mission import Gcs, M, arm, build_world, mavutil, score, sent_score, set_ekf_origin, stop_group, wait_ekf  # noqa: E402
+from sitl_mission import Gcs, M, arm, build_world, mavutil, score, sent_score, set_ekf_origin  # noqa: E402
+from sitl_mission import log_tail, stop_group, wait_ekf  # noqa: E402
 from sitl_mission import runaway as _runaway  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -282,7 +283,9 @@ def run_px4_mission(px4: Path, out: Path, spec: Px4MissionSpec, world: Path | No
         ekf_ok_at = wait_ekf(gcs, spec.ekf_wait_s, status_kind="ESTIMATOR_STATUS", need_global=True, refuse=0)
         figures["ekf_position_after_s"] = None if ekf_ok_at is None else ekf_ok_at - t0
         if ekf_ok_at is None:
-            figures["verdict"] = "ekf_never_ready"
+            figures["verdict"] = "ekf_never_ready"  # say why: what the daemon and PX4 last said
+            figures["daemon_log_tail"] = log_tail(out / "daemon.log")
+            figures["px4_log_tail"] = log_tail(out / "px4" / "out.log")
             return _finish(out, gcs, spec, figures, None, daemon)
         try:
             armed_at = arm(gcs)

@@ -36,7 +36,15 @@ EARTH_M_PER_DEG = 6378137.0 * math.pi / 180.0
 
 class LinkRelay:
     """A TCP relay on a free local port to `target_port` (SITL's SERIAL1): the daemon connects here. `cut(s)` drops
-    every byte both ways for s seconds; the TCP connections stay up, so the daemon sees silence, not a close."""
+    every byte both ways for s seconds; the TCP connections stay up, so the daemon sees silence, not a close.
+
+    A client that connects before the autopilot listens (SITL opens SERIAL1 only after its SERIAL0 has a ground
+    station, later still on a loaded machine) is held, connected, and the upstream connect is tried again every
+    `RETRY_S` for up to `UPSTREAM_WAIT_S`, as a serial cable is there before the autopilot has booted: closing it
+    at once would test the daemon's reconnect at start-up, which is not the fault asked for."""
+
+    RETRY_S = 0.5
+    UPSTREAM_WAIT_S = 60.0
 
     def __init__(self, target_port: int) -> None:
         self.target_port = target_port
@@ -47,6 +55,9 @@ class LinkRelay:
         self.port = self._listen.getsockname()[1]
         self._cut_until = 0.0
         self.dropped_bytes = 0
+        self.upstream_refusals = 0  # upstream connects refused while a client waited (start-up)
+        self.clients = 0
+        self._pending: list[tuple[socket.socket, float]] = []  # clients waiting for the autopilot, since
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="link-relay", daemon=True)
         self._thread.start()
@@ -54,20 +65,38 @@ class LinkRelay:
     def cut(self, seconds: float) -> None:
         self._cut_until = time.monotonic() + seconds
 
+    def _connect_pending(self, sel: selectors.BaseSelector) -> None:
+        """Try the upstream connect for each waiting client; give a client up after UPSTREAM_WAIT_S."""
+        waiting = []
+        for client, since in self._pending:
+            try:
+                upstream = socket.create_connection(("127.0.0.1", self.target_port), timeout=2)
+            except OSError:
+                self.upstream_refusals += 1
+                if time.monotonic() - since < self.UPSTREAM_WAIT_S:
+                    waiting.append((client, since))
+                else:
+                    client.close()
+                continue
+            sel.register(client, selectors.EVENT_READ, upstream)
+            sel.register(upstream, selectors.EVENT_READ, client)
+        self._pending = waiting
+
     def _run(self) -> None:
         sel = selectors.DefaultSelector()
         sel.register(self._listen, selectors.EVENT_READ, None)
+        last_try = 0.0
         while not self._stop.is_set():
+            if self._pending and time.monotonic() - last_try >= self.RETRY_S:
+                last_try = time.monotonic()
+                self._connect_pending(sel)
             for key, _ in sel.select(timeout=0.2):
-                if key.data is None:  # a new client: connect it through
+                if key.data is None:  # a new client: connect it through (now, or once the autopilot listens)
                     client, _ = self._listen.accept()
-                    try:
-                        upstream = socket.create_connection(("127.0.0.1", self.target_port), timeout=5)
-                    except OSError:
-                        client.close()
-                        continue
-                    sel.register(client, selectors.EVENT_READ, upstream)
-                    sel.register(upstream, selectors.EVENT_READ, client)
+                    self.clients += 1
+                    self._pending.append((client, time.monotonic()))
+                    last_try = time.monotonic()
+                    self._connect_pending(sel)
                     continue
                 src, dst = key.fileobj, key.data
                 try:
@@ -89,6 +118,8 @@ class LinkRelay:
                     dst.sendall(data)
                 except OSError:
                     pass
+        for client, _ in self._pending:
+            client.close()
         sel.close()
 
     def close(self) -> None:
@@ -181,6 +212,8 @@ class FaultRun:
                                "fault_ended_after_auto_s": self.ended}
         if self.relay is not None:
             out["fault_link_dropped_bytes"] = self.relay.dropped_bytes
+            out["fault_link_clients"] = self.relay.clients
+            out["fault_link_upstream_refusals"] = self.relay.upstream_refusals
         out.update(daemon_summary(daemon_dir))
         return out
 

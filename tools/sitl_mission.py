@@ -318,8 +318,12 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         t0 = time.time()
         ekf_ok_at = wait_ekf(gcs, spec.ekf_wait_s)
         figures: dict[str, Any] = {"ekf_position_after_s": None if ekf_ok_at is None else ekf_ok_at - t0}
-        if ekf_ok_at is None:
+        if ekf_ok_at is None:  # say why, in the result: what the daemon and the autopilot last said
             figures["verdict"] = "ekf_never_ready"
+            figures["daemon_log_tail"] = log_tail(out / "daemon.log")
+            figures["sitl_log_tail"] = log_tail(sitl_dir / "out.log")
+            if fault is not None:
+                figures.update(fault.figures(out / "daemon"))
             return _finish(out, gcs, spec, figures, None)
         armed_at = arm(gcs)
         gcs.send_cmd(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ROVER_AUTO)
@@ -359,6 +363,14 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
         stop_group(sitl, signal.SIGTERM)
         if fault is not None:
             fault.close()
+
+
+def log_tail(path: Path, lines: int = 25) -> list[str]:
+    """The last `lines` lines of a log file ([] when it is missing): for a result that explains a failed start."""
+    try:
+        return path.read_text(errors="replace").splitlines()[-lines:]
+    except OSError:
+        return []
 
 
 def stop_group(proc: subprocess.Popen | None, first: int, wait_s: float = 15.0) -> None:
