@@ -10,7 +10,9 @@ Truth: start (lat0, lon0), heading `yaw_deg` (NED, true), speed `speed` m/s; aut
 `flavour="px4"` speaks as PX4 SIH does instead: HEARTBEAT autopilot MAV_AUTOPILOT_PX4, HIGHRES_IMU (SI units),
 HIL_STATE_QUATERNION as the true pose (only once asked for, as PX4 streams it), no GPS2_RAW.
 
-Faults: `stall` silences IMU/ATTITUDE; `outage` closes the connection for a while (nothing sent or read; the
+Faults: `stall` silences IMU/ATTITUDE; `streams_reset_at` (elapsed s) drops RAW_IMU to 1 Hz, as a ground
+station's REQUEST_DATA_STREAM on the same port does to ArduPilot, until a SET_MESSAGE_INTERVAL for RAW_IMU comes
+after it; `outage` closes the connection for a while (nothing sent or read; the
 vehicle drives on) and reopens it (UDP: a new socket, `udp_local_port` keeps the source port or not; TCP: the
 autopilot is the server, `transport="tcp"`, and closes and reopens its listening socket); `reboot_at` restarts
 the autopilot clock.
@@ -57,6 +59,8 @@ class MiniAutopilot:
     stall: tuple[float, float] | None = None  # (from, to) elapsed s: no IMU/ATTITUDE (inputs stall)
     reboot_at: float | None = None  # elapsed s: the autopilot clock restarts at 1 s (a reboot)
     outage: tuple[float, float] | None = None  # (from, to) elapsed s: connection closed, nothing sent or read
+    streams_reset_at: float | None = None  # elapsed s: RAW_IMU at 1 Hz from then until asked for again
+    imu_asked_again_at: float | None = None  # elapsed s of the first SET_MESSAGE_INTERVAL RAW_IMU after the reset
     transport: str = "udp"  # "udp": udpout to the daemon's udpin; "tcp": a server on `port` (daemon: tcp:)
     udp_local_port: int | None = None  # UDP source port (None: ephemeral, a new one after an outage)
     gps_s: float = 1.0  # GPS2_RAW (3D fix, 4 Hz) for this long after start (GPS1 is the daemon's GPS_INPUT)
@@ -151,7 +155,12 @@ class MiniAutopilot:
                 if not stalled:
                     mav.attitude_send(int(t_ap * 1e3), 0.0, 0.0, math.radians(self.yaw_deg), 0.0, 0.0, 0.0)
                 k_att += 1
+            slow = self.streams_reset_at is not None and el >= self.streams_reset_at and \
+                self.imu_asked_again_at is None
             while k_imu / self.imu_hz <= el:
+                if slow and k_imu % int(self.imu_hz):  # at 1 Hz
+                    k_imu += 1
+                    continue
                 if not stalled and self.flavour == "px4":
                     mav.highres_imu_send(int(self.ap_time(k_imu / self.imu_hz) * 1e6), 0, 0, -9.80665, 0, 0, 0,
                                          0, 0, 0, 0, 0, 0, 0, 0b111111)
@@ -188,6 +197,11 @@ class MiniAutopilot:
                     mav.param_value_send(name.encode(), float(self.params[name]), m.MAV_PARAM_TYPE_REAL32, 900, 1)
             elif kind == "COMMAND_LONG":
                 self.commands.append(int(msg.param1))
+                el = time.monotonic() - self.t_start
+                if msg.command == m.MAV_CMD_SET_MESSAGE_INTERVAL and int(msg.param1) == m.MAVLINK_MSG_ID_RAW_IMU and \
+                        self.streams_reset_at is not None and el >= self.streams_reset_at and \
+                        self.imu_asked_again_at is None:
+                    self.imu_asked_again_at = el
                 mav.command_ack_send(msg.command, m.MAV_RESULT_ACCEPTED)
             elif kind == "TIMESYNC" and msg.tc1 == 0:
                 mav.timesync_send(int(self.ap_time(time.monotonic() - self.t_start) * 1e9), msg.ts1)

@@ -104,6 +104,23 @@ def test_tcp_reboot_reanchors(tmp_path: Path) -> None:
     assert _error_m(ap, gps[-1]) < 5.0
 
 
+def test_an_imu_stream_slowed_by_someone_else_is_asked_for_again(tmp_path: Path) -> None:
+    """At 4 s RAW_IMU drops from 100 Hz to 1 Hz (a ground station's REQUEST_DATA_STREAM on the same port does this
+    to ArduPilot; so did a misread answer at start-up in CI): the daemon's stream watch sees it within its 2 s
+    windows and asks again within two of them, the IMU comes back, and the estimate goes on (a fix again at the
+    end, its accuracy shrinking)."""
+    daemon, ap = _run("udp", tmp_path, drive_s=16.0, streams_reset_at=4.0)
+    assert daemon.exit_code == 0
+    assert ap.imu_asked_again_at is not None and 4.0 < ap.imu_asked_again_at < 4.0 + 2 * 2.0 + 0.5
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    slow = [e for e in events if e["event"] == "stream_slow"]
+    assert [e["message"] for e in slow] == ["RAW_IMU"], slow
+    assert slow[0]["granted_hz"] == 50.0 and 0.5 <= slow[0]["measured_hz"] <= 2.0  # the profile asks 50 Hz
+    gps = ap.of_type("GPS_INPUT")  # tracking as without the fault (there: 3-7 m between the emulator's fixes)
+    last = [r.msg for r in gps if r.t - ap.t_start > 12.0]
+    assert len(last) >= 15 and all(g.fix_type == 3 and g.horiz_accuracy < 8.0 for g in last)
+
+
 def test_link_watch_transitions() -> None:
     w = LinkWatch(timeout_s=3.0)
     assert not w.check(100.0)  # nothing heard yet: not "lost"

@@ -15,6 +15,7 @@ from taco_mav.mavlink.connection import Link
 from taco_mav.mavlink.mavconst import (MAV_AUTOPILOT_INVALID, MAV_AUTOPILOT_PX4, MAV_TYPE_GCS,
                                        MAV_TYPE_ONBOARD_CONTROLLER, SEV_ERROR, SEV_WARNING)
 from taco_mav.mavlink.requests import GNSS_RATES, ParamCheck, StreamRequester
+from taco_mav.mavlink.stream_watch import StreamWatch
 from taco_mav.mavlink.timesync import ClockMap
 
 log = logging.getLogger(__name__)
@@ -36,6 +37,7 @@ class AutopilotLink:
         self.link: Link | None = None
         self.linkwatch = LinkWatch(link_timeout_s)
         self.requester: StreamRequester | None = None  # made when the autopilot is adopted (`_request_streams`)
+        self.streamwatch: StreamWatch | None = None  # the estimator's inputs arriving at their granted rate: made then
         self.params_check: ParamCheck | None = None  # made when the session opens (link.check_params)
         self.t_heartbeat = Periodic(p.link.heartbeat_hz, 0.0)
         self.t_timesync = Periodic(p.link.timesync_hz, 0.0) if p.link.timesync_hz > 0 else None
@@ -74,8 +76,11 @@ class AutopilotLink:
             self._request_streams(msg.autopilot)
         return (msg.get_srcSystem(), msg.get_srcComponent()) == (link.target_system, link.target_component)
 
-    def heard(self, now: float) -> None:
-        """A message from our autopilot: ends a link outage (event + STATUSTEXT, now that it is reachable)."""
+    def heard(self, now: float, kind: str = "HEARTBEAT") -> None:
+        """A message of type `kind` from our autopilot at companion time `now` (s): ends a link outage (event +
+        STATUSTEXT, now that it is reachable) and counts toward its stream's rate."""
+        if self.streamwatch is not None:
+            self.streamwatch.arrived(kind, now)
         outage = self.linkwatch.heard(now)
         if outage is not None:
             text = f"link restored after {outage:.1f}s"
@@ -94,10 +99,12 @@ class AutopilotLink:
                  "GLOBAL_POSITION_INT": 2.0}  # the autopilot's own position: where a restarted daemon starts
         if self.wants_pose():
             rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
-        rates[self.imu_kind or "RAW_IMU"] = p.link.imu_rate_hz
+        imu = self.imu_kind or "RAW_IMU"
+        rates[imu] = p.link.imu_rate_hz
         rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         assert self.link is not None
         self.requester = StreamRequester(self.link.send, self.link.mav, rates)
+        self.streamwatch = StreamWatch((imu, "ATTITUDE"))
 
     def _on_system_time(self, msg: Any, received: float) -> None:
         self.clockmap.on_system_time(msg.time_boot_ms)
@@ -136,8 +143,17 @@ class AutopilotLink:
             link.send(link.mav.timesync_encode(0, self.clockmap.request_ns()))
         if self.requester is not None:
             self.requester.tick(now, link.target_system, link.target_component)
+            self._watch_streams(now)
         if self.params_check is not None:
             self.params_check.tick(now, link.target_system, link.target_component)
+
+    def _watch_streams(self, now: float) -> None:
+        """Ask again for an estimator input that stopped coming at its granted rate (`StreamWatch`)."""
+        assert self.requester is not None and self.streamwatch is not None
+        for name, measured, granted in self.streamwatch.check(now, self.requester.granted()):
+            log.warning("%s arrives at %.1f Hz, granted %.0f Hz: asking for it again", name, measured, granted)
+            self.reporter.event("stream_slow", message=name, measured_hz=round(measured, 2), granted_hz=granted)
+            self.requester.reask(name)
 
     def watch(self, now: float) -> None:
         """A lost link: nothing from the autopilot for link_timeout_s (logged and written once per outage)."""

@@ -270,7 +270,7 @@ class Daemon:
         if (msg.get_srcSystem(), msg.get_srcComponent()) != (link.target_system, link.target_component):
             self.decoders.reject(kind, "foreign_source")  # only the adopted autopilot's messages are acted on
             return
-        self.autopilot.heard(self.clock())
+        self.autopilot.heard(self.clock(), kind)
         handler = self.dispatch.get(kind)
         if handler is not None:
             handler(msg, received)

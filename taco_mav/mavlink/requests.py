@@ -46,11 +46,19 @@ class _Req:
 
 @dataclass
 class StreamRequester:
-    """Ask for each (message name, rate Hz) with SET_MESSAGE_INTERVAL, retrying every `retry_s`; after `tries`
-    unacknowledged attempts (or a refusal) fall back to REQUEST_DATA_STREAM for that message's group. A
-    refusal is first answered by asking again at `slower_factor` times the rate, up to `slower_tries` times:
-    ArduPilot refuses intervals shorter than 1.25 scheduler periods ("too fast": 40 Hz at most on a 50 Hz
-    Rover), and an interval it accepts beats a data stream of unknown rate."""
+    """Ask for each (message name, rate Hz) with SET_MESSAGE_INTERVAL, one request in flight at a time, retrying
+    after `retry_s` without an answer; after `tries` unacknowledged attempts (or a refusal) fall back to
+    REQUEST_DATA_STREAM for that message's group. A refusal is first answered by asking again at `slower_factor`
+    times the rate, up to `slower_tries` times: ArduPilot refuses intervals shorter than 1.25 scheduler periods
+    ("too fast": 40 Hz at most on a 50 Hz Rover), and an interval it accepts beats a data stream of unknown rate.
+
+    One at a time because COMMAND_ACK names the command, not the message it was about: with several requests in
+    flight an answer cannot be told apart (MAVSDK keeps one command per id in flight for the same reason). A
+    burst once credited ArduPilot's refusal of RAW_IMU at 50 Hz to ATTITUDE and its acceptance of ATTITUDE to
+    RAW_IMU: the daemon believed RAW_IMU came at 50 Hz while it came at its stream's 1 Hz (a CI run of
+    tests/test_sitl.py, EKF3 never had a position). An answer that comes after its request was given up on is
+    ignored. `reask(name)` asks again for a message already granted (the daemon's stream watch: it stopped
+    arriving at its rate)."""
 
     send: Callable[[Any], None]
     mav: Any
@@ -60,8 +68,10 @@ class StreamRequester:
     slower_factor: float = 0.8
     slower_tries: int = 2
     _reqs: dict[int, _Req] = field(default_factory=dict)
-    _next: float = 0.0
+    _in_flight: _Req | None = None
+    _sent_at: float = -math.inf
     fallback_streams: set[int] = field(default_factory=set)
+    late_acks: int = 0  # answers to a request given up on (ignored)
 
     def __post_init__(self) -> None:
         for name, rate in self.rates.items():
@@ -72,10 +82,23 @@ class StreamRequester:
     def done(self) -> bool:
         return all(r.acked or r.failed for r in self._reqs.values())
 
+    def granted(self) -> dict[str, float]:
+        """Message name -> the rate (Hz) the autopilot accepted, for each message granted by SET_MESSAGE_INTERVAL
+        (not those left to a data stream or still asked for)."""
+        return {r.name: r.rate_hz for r in self._reqs.values() if r.acked}
+
+    def reask(self, name: str) -> None:
+        """Ask for `name` again at the rate last granted (a stream that stopped arriving at it)."""
+        for r in self._reqs.values():
+            if r.name == name and r.acked:
+                r.acked, r.tries = False, 0
+
     def tick(self, now: float, target_system: int, target_component: int) -> None:
-        if self.done or now < self._next or not target_system:
+        if self.done or not target_system:
             return
-        self._next = now + self.retry_s
+        if self._in_flight is not None and now - self._sent_at < self.retry_s:
+            return  # the answer to the request in flight is awaited
+        self._in_flight = None
         for r in self._reqs.values():
             if r.acked or r.failed:
                 continue
@@ -85,6 +108,8 @@ class StreamRequester:
             r.tries += 1
             self.send(self.mav.command_long_encode(target_system, target_component, m.MAV_CMD_SET_MESSAGE_INTERVAL,
                                                    0, r.msg_id, 1e6 / r.rate_hz, 0, 0, 0, 0, 0))
+            self._in_flight, self._sent_at = r, now
+            return
 
     def _fallback(self, r: _Req, target_system: int, target_component: int, why: str) -> None:
         r.failed = True
@@ -101,11 +126,11 @@ class StreamRequester:
     def on_message(self, msg: Any, target_system: int, target_component: int) -> None:
         if msg.get_type() != "COMMAND_ACK" or msg.command != m.MAV_CMD_SET_MESSAGE_INTERVAL:
             return
-        # COMMAND_ACK does not say which message it answers: credit the oldest outstanding request.
-        pending = [r for r in self._reqs.values() if not (r.acked or r.failed) and r.tries > 0]
-        if not pending:
+        r = self._in_flight
+        if r is None:  # the answer to a request given up on: which message it was about is unknown
+            self.late_acks += 1
             return
-        r = pending[0]
+        self._in_flight = None  # the next request goes at the next tick
         if msg.result == m.MAV_RESULT_ACCEPTED:
             r.acked = True
             log.info("autopilot sends %s at %.0f Hz", r.name, r.rate_hz)
@@ -115,7 +140,6 @@ class StreamRequester:
             log.info("autopilot refused %s at %.0f Hz: asking for %.0f Hz", r.name, r.rate_hz,
                      r.rate_hz * self.slower_factor)
             r.rate_hz *= self.slower_factor
-            self._next = 0.0  # ask again at the next tick
         elif msg.result in (m.MAV_RESULT_DENIED, m.MAV_RESULT_UNSUPPORTED, m.MAV_RESULT_FAILED):
             self._fallback(r, target_system, target_component, f"refused (result {msg.result})")
 
