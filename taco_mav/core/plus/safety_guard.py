@@ -55,7 +55,7 @@ class SafetyGuard:
         host = self.host
         self.zupt_holdoff_until = host.t + self.q.guard_zupt_holdoff_s
         gap = self.unaided.v - float(host.pre.speed)
-        if self.zupt_since_reset and gap > 3.0 * self.unaided.sigma_v0 + self.q.zupt_speed_max_mps:
+        if self.zupt_since_reset and gap > 3.0 * self.unaided.sigma_speed() + self.q.zupt_speed_max_mps:
             host.pre.speed = self.unaided.v
             self.zupt_since_reset = False
             self.speed_variance_at_least(gap * gap)
