@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import calendar
+import dataclasses
 import math
 import os
 
@@ -70,6 +71,22 @@ def test_gps_input_fields_and_units() -> None:
     assert msg.speed_accuracy == pytest.approx(0.3)
     assert msg.ignore_flags == (mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT | mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY
                                 | mavlink.GPS_INPUT_IGNORE_FLAG_VDOP)
+
+
+def test_speed_accuracy_is_the_filters_own_where_it_has_one() -> None:
+    """taco+'s speed 1-sigma (its speed-error state) is reported when it exceeds max(floor, 5 % of the speed):
+    on the IMU alone it grows, and the autopilot must not steer by that speed as if it were 0.3 m/s good; the
+    paper's filter has none (NaN): the floor and the fraction as before; GPS_INPUT and ODOMETRY agree."""
+    def acc(sigma_speed: float, speed: float = 3.0) -> float:
+        e = dataclasses.replace(est(speed=speed), sigma_speed=sigma_speed)
+        return encoders.solution(e, ORIGIN, CFG, healthy=True).speed_acc
+
+    assert acc(math.nan) == pytest.approx(0.3) and acc(math.nan, speed=10.0) == pytest.approx(0.5)
+    assert acc(0.1) == pytest.approx(0.3) and acc(1.4) == pytest.approx(1.4)
+    sol = encoders.solution(dataclasses.replace(est(speed=3.0), sigma_speed=1.4), ORIGIN, CFG, healthy=True)
+    msg = roundtrip(lambda mav: encoders.gps_input(mav, sol, CFG, 0.0))
+    assert msg.speed_accuracy == pytest.approx(1.4)
+    assert acc(math.inf) == pytest.approx(0.3)  # never sent as such
 
 
 def test_gps_input_without_yaw_and_the_synthetic_profiles_send_none() -> None:

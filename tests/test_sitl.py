@@ -81,10 +81,6 @@ def _fault_check(res: dict, spec: MissionSpec) -> None:
     assert not accuracy_failures(res), (accuracy_failures(res), res)
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "issue 31, open: after the outage the autopilot holds (EKF failsafe) while the safety guard gives the IMU's "
-    "speed back (+2.1 m/s) and the camera, which sees the stop, is held as suspect; the estimate then moves on at "
-    "about 0.9 m/s with 0.9 m reported: 6.0x the 1-sigma in one of two runs (the other 1.08x)"))
 def test_camera_frozen_then_black_mid_mission(tmp_path):
     """Issue 31: the camera's frames frozen for 10 s, then black for 10 s, 40 s into AUTO. Frozen and black frames
     are refused (no fix from a place the rover has left, no speed from a picture that does not move); on the IMU

@@ -47,7 +47,8 @@ class OutputConfig:
     # HDOP = horiz_accuracy / hdop_uere_m, clipped to [hdop_min, 99.99]; 2.0 maps EKF3's 5 m gate to HDOP 2.5.
     hdop_uere_m: float = field(default=2.0, metadata=bounded(0.0, open_lo=True))
     hdop_min: float = field(default=0.5, metadata=bounded(0.0, open_lo=True))
-    # Reported speed accuracy, m/s: max(floor, fraction * speed) (the filter carries no speed covariance).
+    # Reported speed accuracy, m/s: max(floor, fraction * speed, the filter's own speed 1-sigma where it has one:
+    # taco+'s speed-error state; the paper's filter has none).
     speed_accuracy_floor_mps: float = field(default=0.3, metadata=bounded(0.0, open_lo=True))
     speed_accuracy_fraction: float = field(default=0.05, metadata=bounded(0.0))
     # fix_type 3 while sigma_h <= degrade_accuracy_m; above it fix_type 1 until sigma_h <= recover_accuracy_m.

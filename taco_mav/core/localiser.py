@@ -389,8 +389,9 @@ class Localiser:
         dx, dy = self.pre.interval_displacement
         x = self.ukf.x
         theta = wrap_angle(float(x[2]) + wrap_angle(self.pre.theta - self.pre.interval_heading))
+        sigma_v = math.sqrt(max(float(self.ukf.P[3, 3]), 0.0)) if len(x) > 3 else math.nan  # taco+'s speed error
         return Estimate(self.t, np.array([x[0] + dx, x[1] + dy]), theta, float(self.pre.speed),
-                        self.ukf.P[:2, :2].copy(), self.terms.epsilon, self.t - self.last_fix_t)
+                        self.ukf.P[:2, :2].copy(), self.terms.epsilon, self.t - self.last_fix_t, sigma_speed=sigma_v)
 
     @property
     def filter_sigma_h(self) -> float:

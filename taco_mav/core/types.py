@@ -9,6 +9,8 @@ Frames and units (see DESIGN.md):
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,7 +80,8 @@ class Estimate:
 
     t: autopilot time, seconds. xy: ENU metres relative to the origin, shape (2,). theta: heading, ENU radians.
     speed: forward speed, m/s. cov_xy: 2x2 position covariance, m^2. epsilon: IMU error envelope, metres.
-    since_fix_s: seconds since the last accepted fix (or since start).
+    since_fix_s: seconds since the last accepted fix (or since start). sigma_speed: the filter's own 1-sigma of
+    `speed`, m/s (taco+'s speed-error state; NaN where the filter has none, as the paper's).
     """
 
     t: float
@@ -89,6 +92,7 @@ class Estimate:
     epsilon: float
     since_fix_s: float = 0.0
     extra: dict = field(default_factory=dict)
+    sigma_speed: float = math.nan
 
     @property
     def sigma_h(self) -> float:

@@ -129,7 +129,10 @@ def solution(est: Estimate, origin: Origin, cfg: OutputConfig, healthy: bool) ->
     yaw = math.remainder(math.pi / 2.0 - theta_true, 2.0 * math.pi)
     cov = np.asarray(est.cov_xy, dtype=float) if ok else np.diag([sigma**2, sigma**2])
     cov_ne = np.array([[cov[1, 1], cov[0, 1]], [cov[0, 1], cov[0, 0]]])
-    speed_acc = max(cfg.speed_accuracy_floor_mps, cfg.speed_accuracy_fraction * abs(speed))
+    # the filter's own speed 1-sigma where it has one (taco+): on the IMU alone (a camera outage) it grows, and an
+    # autopilot told 0.3 m/s steers by a drifting speed (SITL: the rover at 4.4 m/s for a 3 m/s mission)
+    sigma_v = _f(est.sigma_speed, 0.0) if ok else 0.0
+    speed_acc = max(cfg.speed_accuracy_floor_mps, cfg.speed_accuracy_fraction * abs(speed), sigma_v)
     alt = origin.alt - float(cfg.antenna_frd_m[2])
     return NavSolution(_f(est.t, 0.0), lat, lon, alt, float(xy[1]), float(xy[0]), vn, ve, speed, yaw,
                        float(sigma), cov_ne, speed_acc, GPS_FIX_3D if (ok and healthy) else GPS_FIX_NONE)
