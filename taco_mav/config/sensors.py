@@ -45,12 +45,9 @@ class MapConfig:
     # A crop with a smaller share of on-map pixels raises OffMapError; above it, off-map pixels are zero and
     # Crop.valid_fraction says how many were on the map (not in the paper).
     min_valid_fraction: float = field(default=0.9, metadata=bounded(0.0, 1.0))
-    # Mosaics up to this size (decoded RGBA, MB) are read into memory at open; larger ones (all, at the default
-    # 0) are read in cached 256 px blocks, only where crops fall (not in the paper). 0: a trigger's five crops
-    # come from about 25 blocks of the map, and a real orthophoto of a few km^2 decodes to hundreds of MB; on the
-    # companion bench (a 2140 x 2100 px mosaic) reading it whole cost the daemon 27 MB more at the peak (386
-    # against 359 MB), for crops of 5.3 instead of about 6 ms each (docs/companion.md).
-    in_memory_max_mb: float = field(default=0.0, metadata=bounded(0.0))
+    # Mosaics up to this size (decoded RGBA, MB) are read into memory at open; larger ones are read in cached
+    # 256 px blocks (not in the paper).
+    in_memory_max_mb: float = field(default=1024.0, metadata=bounded(0.0))
     # A matcher call running longer (wall s) is cancelled, counted, and its worker replaced.
     matcher_timeout_s: float = field(default=10.0, metadata=bounded(0.0, open_lo=True))
     # The mosaic's georeferencing 1-sigma per axis, m: real orthophotos are off by about a metre. taco+ then
