@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from taco_mav.core import ukf_kernels as _k
+from taco_mav.core import kernels as _k
 from taco_mav.core.preintegration import wrap_angle as _wrap
 
 _EIG_FLOOR = 1e-9
