@@ -18,14 +18,16 @@ from fault_helpers import ORIGIN_LAT, ORIGIN_LON, write_geotiff
 
 import taco_mav
 from taco_mav.bench.companion import cpu_seconds, peak_rss_mb
+from taco_mav.core import ukf_aot
 from taco_mav.mavlink.connection import free_udp_port
 from taco_mav.mavlink.encoders import Origin
 
 # What a run with a video or a device camera, the classical matcher and a GeoTIFF never uses: the FG2 matcher and
 # torch, plotting, the simulation renderers (world: cameras), the offline evaluation and the simulator, the offline
 # smoother's gtsam and scipy.signal / scipy.spatial, scipy.stats (the GNSS guard's chi2 loads it only once a real
-# receiver is read) and filterpy (the UKF computes its sigma-point weights by filterpy's arithmetic).
-NEVER_LOADED = ("torch", "matplotlib", "moderngl", "pandas", "taco_mav.cvgl.fg2", "taco_mav.cvgl.emulator",
+# receiver is read) and filterpy (the UKF computes its sigma-point weights by filterpy's arithmetic); with the
+# filter's kernels built ahead of time (the install step, core/ukf_aot.py) numba and its LLVM (llvmlite).
+NEVER_LOADED = ("numba", "llvmlite", "torch", "matplotlib", "moderngl", "pandas", "taco_mav.cvgl.fg2", "taco_mav.cvgl.emulator",
                 "taco_mav.evaluation", "taco_mav.sim", "taco_mav.datasets.synthetic.render",
                 "taco_mav.datasets.synthetic.render3d", "taco_mav.datasets.synthetic.world3d", "gtsam", "filterpy",
                 "scipy.stats", "scipy.signal", "scipy.spatial")
@@ -40,6 +42,7 @@ def _imported(stderr: str) -> set[str]:
 def test_a_run_with_a_video_camera_and_the_classical_matcher_loads_no_model_plot_or_renderer(tmp_path: Path) -> None:
     """`taco-mav run` as a user starts it (ardupilot_rover: taco+, classical, camera speed) opens its camera, map
     and matcher; `-X importtime` lists every module it imported by then: none of NEVER_LOADED."""
+    ukf_aot.ensure_built()  # as the install does (docs/real_rover.md)
     video = tmp_path / "camera.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (160, 90))
     if not writer.isOpened():

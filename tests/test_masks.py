@@ -17,7 +17,7 @@ from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import Crop, GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
 from taco_mav.cvgl.ipm import BevProjector
-from taco_mav.cvgl.masks import MaskOptions, horizon_row, image_mask, vertical_structure_mask
+from taco_mav.cvgl.masks import MaskOptions, _colour_gradient, horizon_row, image_mask, vertical_structure_mask
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
 KITTI_IMAGES = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_images"
@@ -96,3 +96,36 @@ def test_real_kitti_frames_keep_their_road() -> None:
         assert m.mean() < 0.35, p.name
         found += m.mean() > 0.02
     assert found >= 2
+
+
+def _whole_image_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient `_colour_gradient` computed in one piece (its definition before it went by bands)."""
+    img = cv2.GaussianBlur(image.astype(np.float32), (5, 5), 1.0)
+    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+    if img.ndim == 2:
+        return gx, gy
+    k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
+    return np.take_along_axis(gx, k, axis=2)[:, :, 0], np.take_along_axis(gy, k, axis=2)[:, :, 0]
+
+
+@pytest.mark.parametrize("shape", [(720, 1280, 3), (375, 1242, 3), (130, 40, 3), (65, 33, 3), (64, 10, 3),
+                                   (5, 7, 3), (1, 9, 3), (67, 20), (3, 3)])
+def test_the_gradient_by_bands_is_the_whole_image_gradient_bit_for_bit(shape: tuple[int, ...]) -> None:
+    """Bands with a 3-row halo see what the whole image gives each row: equal float32 arrays, every size (a band
+    boundary inside, on or beyond the image; grey and colour)."""
+    rng = np.random.default_rng(sum(shape))
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    image[:, : shape[1] // 3] //= 4  # an edge as well as noise
+    gx, gy = _colour_gradient(image)
+    rx, ry = _whole_image_gradient(image)
+    assert gx.dtype == np.float32 and gx.shape == shape[:2]
+    np.testing.assert_array_equal(gx, rx)
+    np.testing.assert_array_equal(gy, ry)
+
+
+def test_the_gradient_of_rendered_frames_is_the_whole_image_gradient(scene) -> None:
+    _, frames = scene
+    for frame in frames:
+        for got, want in zip(_colour_gradient(frame), _whole_image_gradient(frame)):
+            np.testing.assert_array_equal(got, want)

@@ -133,3 +133,22 @@ def test_non_utm_crs_is_refused(tmp_path: Path) -> None:
         SatelliteMap(path)
     with pytest.raises(MapError, match="not found"):
         SatelliteMap(tmp_path / "missing.tif")
+
+
+def test_crops_from_the_block_cache_are_the_in_memory_crops_and_the_cache_stays_bounded(tif: Path) -> None:
+    """At the mosaic's resolution (pyramid level 0, the daemon's crops) the blocks read in windows give the same
+    pixels as the mosaic read whole, byte for byte, with blocks evicted and read again as well; the LRU holds at
+    most its capacity (default 64 blocks, 16 MB)."""
+    rng = np.random.default_rng(3)
+    with SatelliteMap(tif) as whole, SatelliteMap(tif, in_memory_max_mb=0.0) as windows, \
+            SatelliteMap(tif, in_memory_max_mb=0.0, cache_blocks=4) as small:
+        assert whole.in_memory and not windows.in_memory and windows._cache_blocks == 64
+        for _ in range(12):
+            centre = CENTRE + rng.uniform(-60.0, 60.0, 2)
+            heading = float(rng.uniform(-math.pi, math.pi))
+            a = whole.crop(centre, heading, 512, RES)
+            for b in (windows.crop(centre, heading, 512, RES), small.crop(centre, heading, 512, RES)):
+                np.testing.assert_array_equal(a.image, b.image)
+                assert a.valid_fraction == b.valid_fraction == 1.0
+        assert len(windows._blocks) == 20  # the 1200 px map's 25 blocks, of which the crops touch 20
+        assert len(small._blocks) == 4

@@ -15,8 +15,9 @@ CPU time is the process's own, so other load on the machine changes it little (c
 would not do. Keys:
 - daemon_cpu_cores: cores, averaged over the mission (target <= 0.1 of one x86 core);
 - daemon_rss_mb: peak RSS, MB of 10^6 bytes (target <= 250);
-- daemon_startup_cpu_s: CPU seconds from the process's start to the first played sample (imports, kernels
-  loaded from numba's cache, map and camera opened);
+- daemon_startup_cpu_s: CPU seconds from the process's start to the first played sample (imports, the UKF
+  kernels compiled ahead of time, built before the daemon starts as an install builds them; map and camera
+  opened);
 - daemon_budget_mission_s, daemon_budget_fixes_answered / _accepted, daemon_budget_camera_speed_used,
   daemon_budget_gps_input_hz (autopilot clock), daemon_budget_ate_m: what the mission did, so a budget met by a
   daemon that did nothing shows.
@@ -97,8 +98,11 @@ def daemon_command(connect: str, video: Path, mosaic: Path, log_dir: Path, profi
 def measure(tmp: Path, mission_s: float = MISSION_S, profile: str = PROFILE) -> dict[str, float]:
     """Build the world and the video in `tmp`, play the mission to a daemon process, return the keys (module
     docstring). profile: the daemon's `--profile` (a name or a YAML file: what a knob saves, docs/companion.md)."""
+    from taco_mav.core import ukf_aot
     from taco_mav.datasets.synthetic import build_world
     from taco_mav.sim import Simulator
+
+    ukf_aot.ensure_built()  # the install step (docs/real_rover.md): the daemon's kernels without numba
 
     world = build_world(tmp / "world", seed=SEED, length_km=LENGTH_KM, progress=False, realism="flat")
     video = render_video(world, tmp / "camera.avi", mission_s + 5.0, profile=profile)

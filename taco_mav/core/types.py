@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from taco_mav.core import ukf_kernels as _k
+from taco_mav.core import kernels as _k
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,7 +8,8 @@ sigma point's weight is about -1e6, and once P is large (minutes without a fix) 
 cancellation loses positive definiteness. After every step P is symmetrised and, if needed, repaired to the
 nearest positive-definite matrix (eigenvalue floor), so Cholesky in the next predict never fails.
 
-Speed (issue 18): predict and the updates run as compiled kernels (`ukf_kernels`, numba) that do exactly the
+Speed (issue 18): predict and the updates run as compiled kernels (`ukf_kernels`, numba; through `kernels`,
+which loads them compiled ahead of time, without numba, when `ukf_aot` built them) that do exactly the
 operations of filterpy's predict and of `joseph_update_reference`, bit for bit; the filter keeps x and P as
 plain arrays. The sigma-point weights are filterpy's `MerweScaledSigmaPoints` weights, computed here by the same
 arithmetic (`merwe_weights`): importing filterpy.kalman loads scipy.stats, about 55 MB a companion computer's
@@ -21,7 +22,7 @@ import math
 
 import numpy as np
 
-from taco_mav.core import ukf_kernels as _k
+from taco_mav.core import kernels as _k
 from taco_mav.core.preintegration import wrap_angle as _wrap
 
 _EIG_FLOOR = 1e-9

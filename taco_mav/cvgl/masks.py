@@ -35,6 +35,10 @@ from taco_mav.camera.geometry import GroundCamera
 
 __all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
 
+# `_colour_gradient`'s bands: rows per band, and the rows read beyond each side (blur radius 2 + Sobel radius 1).
+_BAND_ROWS = 64
+_HALO = 3
+
 
 @dataclass(frozen=True)
 class MaskOptions:
@@ -67,7 +71,9 @@ def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskO
     gx, gy = _colour_gradient(image)
     H, W = gx.shape
     tilt = math.tan(math.radians(opts.max_tilt_deg))
-    vertical = np.abs(gy) <= tilt * np.abs(gx)
+    agx = np.abs(gx, out=gx)  # in place: only the magnitudes are used (a frame's float32 arrays are 3.7 MB)
+    vertical = np.abs(gy, out=gy) <= tilt * agx
+    del gy
     # the cone below the vanishing point where straight ground lines are near-vertical too
     vh, cx = horizon_row(camera), float(camera.K[0, 2])
     u = np.arange(W, dtype=np.float32)[None, :]
@@ -75,11 +81,11 @@ def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskO
     cone = (v > vh) & (np.abs(u - cx) <= tilt * (v - vh) + 2.0)
     L = max(5, int(round(opts.min_len_frac * H)))
     line = np.ones((L, 1), np.uint8)
-    strong = cv2.morphologyEx((vertical & ~cone & (np.abs(gx) >= opts.min_contrast)).astype(np.uint8),
+    strong = cv2.morphologyEx((vertical & ~cone & (agx >= opts.min_contrast)).astype(np.uint8),
                               cv2.MORPH_OPEN, line)
     # hysteresis: weaker vertical edges continuing a strong one (an object's edge against ground is often
     # fainter than against the sky) extend it down to the object's foot
-    weak = cv2.morphologyEx((vertical & ~cone & (np.abs(gx) >= opts.min_contrast / 3.0)).astype(np.uint8),
+    weak = cv2.morphologyEx((vertical & ~cone & (agx >= opts.min_contrast / 3.0)).astype(np.uint8),
                             cv2.MORPH_OPEN, line) | strong
     n, labels = cv2.connectedComponents(weak, connectivity=8)
     keep = np.zeros(n, bool)
@@ -101,14 +107,28 @@ def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskO
 def _colour_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Image gradient (gx, gy), grey levels per pixel, after a Gaussian blur (sigma 1 px); for colour images
     that of the channel with the strongest gradient at each pixel (a magenta box on grey asphalt of the same
-    brightness still has an edge)."""
-    img = cv2.GaussianBlur(image.astype(np.float32), (5, 5), 1.0)
-    gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
-    gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
-    if img.ndim == 2:
-        return gx, gy
-    k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
-    return np.take_along_axis(gx, k, axis=2)[:, :, 0], np.take_along_axis(gy, k, axis=2)[:, :, 0]
+    brightness still has an edge). float32 (H, W) each.
+
+    Computed in bands of `_BAND_ROWS` rows, each read with `_HALO` rows either side (the 5x5 blur's 2 and the
+    Sobel's 1), so a band's rows see exactly the pixels the whole image would give them (the same numbers bit
+    for bit, tests/test_masks.py): a 1280x720 colour frame's float32 copy, blur, gradients and their squares
+    whole held about 60 MB at once in the matcher thread, a band a 12th of it."""
+    H = image.shape[0]
+    gx_out = np.empty(image.shape[:2], np.float32)
+    gy_out = np.empty(image.shape[:2], np.float32)
+    for r0 in range(0, H, _BAND_ROWS):
+        r1 = min(H, r0 + _BAND_ROWS)
+        a, b = max(0, r0 - _HALO), min(H, r1 + _HALO)
+        img = cv2.GaussianBlur(image[a:b].astype(np.float32), (5, 5), 1.0)
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)[r0 - a:r1 - a]
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)[r0 - a:r1 - a]
+        if img.ndim == 2:
+            gx_out[r0:r1], gy_out[r0:r1] = gx, gy
+            continue
+        k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
+        gx_out[r0:r1] = np.take_along_axis(gx, k, axis=2)[:, :, 0]
+        gy_out[r0:r1] = np.take_along_axis(gy, k, axis=2)[:, :, 0]
+    return gx_out, gy_out
 
 
 def _fill_between(foot: np.ndarray, max_gap: int, tol: float) -> np.ndarray:

@@ -67,11 +67,12 @@ class SatelliteMap:
     path: the GeoTIFF (1 band grey, or 3+ bands RGB[A], uint8). min_valid: default share of on-map pixels below
     which `crop` raises OffMapError (0.9: a matcher copes with a thin blank margin, not with half a crop).
     in_memory_max_mb: decoded RGBA size up to which the mosaic is read whole at open. cache_blocks: LRU capacity
-    in 256 px blocks for larger mosaics.
+    in 256 px blocks (256 KB each) for larger mosaics: 64 (16 MB) holds a trigger's five 512 px crops at the
+    mosaic's resolution (about 25 blocks) and those of the next few triggers along the drive.
     """
 
     def __init__(self, path: str | Path, min_valid: float = 0.9, in_memory_max_mb: float = 1024.0,
-                 cache_blocks: int = 512) -> None:
+                 cache_blocks: int = 64) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise MapError(f"{self.path}: satellite GeoTIFF not found")

@@ -30,7 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
-from taco_mav.core import ukf_kernels
+from taco_mav.core import kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
 from taco_mav.daemon.anchor import Anchor
@@ -80,10 +80,10 @@ class Daemon:
             matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
                                else options.matcher_timeout_s))
         self.profile, self.opt = profile, options
-        # The first run after an install compiles the UKF kernels (numba: seconds, a minute on a busy machine). Done
-        # here, before `start()` opens the link, so the loop never stalls on it mid-drive; later runs load the cache.
+        # Without the kernels built ahead of time (core/ukf_aot.py) the first run compiles them (numba: seconds, a
+        # minute on a busy machine): here, before `start()` opens the link, so the loop never stalls mid-drive.
         started = time.perf_counter()
-        ukf_kernels.warm_up()
+        kernels.warm_up()
         log.debug("filter kernels ready in %.1f s", time.perf_counter() - started)
         self.clock, self.wall_clock = clock, wall_clock
         self.params = localiser_params(profile)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from taco_mav.core import ukf_kernels as _kernels
+from taco_mav.core import kernels as _kernels
 from taco_mav.core.plus.params import PlusParams
 
 
