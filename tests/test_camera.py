@@ -119,6 +119,21 @@ def test_corrupt_jpeg_from_the_camera_is_a_corrupt_frame() -> None:
     assert exc.value.reason == "corrupt_frame"
 
 
+def test_jpeg_decodes_to_rgb_exactly_as_bgr_swapped() -> None:
+    """An MJPEG frame decoded straight to RGB (`_to_rgb`) is the BGR decode's pixels in RGB order, bit for bit."""
+    from taco_mav.camera.sources import _to_rgb
+
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(0, 255, (72, 128, 3), dtype=np.uint8), (0, 0), 1.5)
+    ok, jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    assert ok
+    rgb = _to_rgb(jpeg.reshape(1, -1))
+    bgr = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+    assert rgb.shape == (72, 128, 3) and rgb.dtype == np.uint8
+    assert np.array_equal(rgb, bgr[..., ::-1])
+    assert int(np.abs(rgb.astype(int) - img[..., ::-1]).max()) <= 40  # the picture encoded, within JPEG's loss
+
+
 def test_video_source_unopenable() -> None:
     with pytest.raises(ConfigError):
         VideoSource("/nonexistent/clip.avi").start()
