@@ -54,6 +54,16 @@ def test_guard_verdicts() -> None:
     assert _reason(quiet, (1.0, img), 1.0) == "ok" and _reason(quiet, (1.1, img), 1.1) == "ok"
 
 
+@pytest.mark.parametrize("step, verdict", [(3, "blank_frame"), (5, "ok")])
+def test_guard_blank_is_the_std_of_every_4th_pixel(step: int, verdict: str) -> None:
+    """Blank means a grey-level std under min_std (2) over every 4th pixel of every 4th row, all channels: half
+    of those pixels 100 and half 100 + step is a std of step / 2 (1.5: blank; 2.5: not), whatever lies between."""
+    img = np.full((120, 160, 3), 100, np.uint8)
+    img[1::4, 1::4] = 250  # off the subsample: never seen
+    img[::8, ::4] = 100 + step  # every other subsampled row
+    assert _reason(FrameGuard(160, 120, max_gap_s=0.15), (5.0, img), 5.0) == verdict
+
+
 def test_folder_corrupt_and_empty(tmp_path: Path) -> None:
     src = FolderSource(write_folder(tmp_path / "a", [noise_image(0), b"\x89PNG garbage" * 50, noise_image(2)]))
     assert src.frame_near(0.0, 0.05)[1].shape == (120, 160, 3)

@@ -350,8 +350,11 @@ class FrameGuard:
             scaled = " or the same aspect" if self.rectifier is not None else ""
             raise FrameRejected("bad_shape", f"{shape} {getattr(img, 'dtype', type(img).__name__)}, expected "
                                              f"({self.height}, {self.width}, 3){scaled} uint8")
-        if float(img[::4, ::4].std()) < self.min_std:
-            raise FrameRejected("blank_frame", f"mean grey {float(img[::4, ::4].mean()):.0f}")
+        # the grey levels of every 4th pixel of every 4th row, all channels as one (numpy's std, 1.5 ms a 1280x720
+        # frame; OpenCV's sums 0.5 ms, the same value to 1e-12)
+        mean, std = cv2.meanStdDev(np.ascontiguousarray(img[::4, ::4]).reshape(-1, 1))
+        if float(std[0, 0]) < self.min_std:
+            raise FrameRejected("blank_frame", f"mean grey {float(mean[0, 0]):.0f}")
         if self.check_frozen:  # a CRC of all pixels: only where it is compared
             crc = zlib.crc32(np.ascontiguousarray(img).data)
             last, self._last = self._last, (t_frame, crc)
