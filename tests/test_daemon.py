@@ -184,17 +184,19 @@ def test_signal_stops_clean(tmp_path: Path, sig: int, code: int) -> None:
 @pytest.mark.parametrize("period_s, lo, hi", [(0.05, 18.0, 28.0), (0.0, 45.0, 600.0)])
 def test_loop_reads_the_link_at_most_every_loop_period(monkeypatch: pytest.MonkeyPatch, period_s: float, lo: float,
                                                       hi: float) -> None:
-    """RAW_IMU at 100 Hz and ATTITUDE at 50 Hz: with link.loop_period_s 0.05 the loop reads the link 20 times a
+    """RAW_IMU at 100 Hz and ATTITUDE at 50 Hz: with LOOP_PERIOD_S 0.05 the loop reads the link 20 times a
     second and at the 5 Hz outputs and 1 Hz heartbeats (at most 26), every sample still reaching the filter and
     GPS_INPUT still at 5 Hz; with 0 it reads at every arrival and at least every 20 ms, as before."""
+    from taco_mav.daemon import daemon as daemon_module
     from taco_mav.mavlink.connection import Link
+
+    monkeypatch.setattr(daemon_module, "LOOP_PERIOD_S", period_s)
 
     reads: list[float] = []
     recv = Link.recv
     monkeypatch.setattr(Link, "recv", lambda self, timeout: reads.append(time.monotonic()) or recv(self, timeout))
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator", "link": {"loop_period_s": period_s}}),
-                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)
     ap = MiniAutopilot(port)

@@ -25,11 +25,6 @@ class LinkConfig:
     imu_rate_hz: float = field(default=50.0, metadata=bounded(1.0, 400.0))  # requested IMU and ATTITUDE rate
     attitude_rate_hz: float = field(default=50.0, metadata=bounded(1.0, 400.0))
     request_rates: bool = True  # send SET_MESSAGE_INTERVAL (fallback REQUEST_DATA_STREAM) at start-up
-    # The daemon loop reads the link at most every loop_period_s (wall s) and whenever an output or a heartbeat is
-    # due, handling what came in meanwhile at once (outputs are as fresh: the link is read before each one). Each
-    # pass costs its fixed round (fix results, camera speed, schedules) and cold caches: a pass every 20 ms or less
-    # (50 Hz IMU) took the loop 0.059-0.069 core on the companion bench, one every 50 ms 0.042 (0 reads as before).
-    loop_period_s: float = field(default=0.05, metadata=bounded(0.0, 0.2))
     heartbeat_hz: float = field(default=1.0, metadata=bounded(0.2, 10.0))
     timesync_hz: float = field(default=1.0, metadata=bounded(0.0, 10.0))  # TIMESYNC requests; 0 disables
     # Autopilot time stepping back by more than this is a reboot: the estimator is re-anchored.
