@@ -62,7 +62,7 @@ __all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
 
 Handler = Callable[[Any, float], None]
 # Wall s between the loop's reads of the link unless an output or heartbeat is due. A pass pays a fixed round and
-LOOP_PERIOD_S = 0.05  # cold caches: companion bench loop 0.059-0.069 core at 58-63 passes a second, 0.042 at 20
+LOOP_PERIOD_S = 0.1  # cold caches: companion bench loop 0.069 core at 63 passes a second, 0.042 at 20, 0.035 at 10
 
 
 class Daemon:
