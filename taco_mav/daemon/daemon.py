@@ -61,8 +61,6 @@ log = logging.getLogger(__name__)
 __all__ = ["Daemon", "DaemonOptions", "DaemonStats", "run_daemon"]
 
 Handler = Callable[[Any, float], None]
-# Wall s between the loop's reads of the link unless an output or heartbeat is due. A pass pays a fixed round and
-LOOP_PERIOD_S = 0.1  # cold caches: companion bench loop 0.069 core at 63 passes a second, 0.042 at 20, 0.035 at 10
 
 
 class Daemon:
@@ -110,7 +108,7 @@ class Daemon:
         self.link: Link | None = None
         self.exit_code: int | None = None
         self._thread: threading.Thread | None = None
-        self._passed = -math.inf  # wall s (time.monotonic) of the last pass's read of the link
+        self._passed = -math.inf  # wall s (time.monotonic) of the last read of the link
 
     @staticmethod
     def _dispatch_table(*tables: dict[str, Handler]) -> dict[str, Handler]:
@@ -237,10 +235,11 @@ class Daemon:
 
     # ------------------------------------------------------------------ loop
     def _step(self) -> None:
-        """One loop pass: receive (LOOP_PERIOD_S after the last, or at an output or heartbeat), handle, collect fixes."""
+        """One loop pass: receive (autopilot.read_period after the last read, or when an output or heartbeat is
+        due), handle, collect fixes."""
         now = self.clock()
         due = min(self.outputs.next_due, self.autopilot.next_due)
-        rest = min(self._passed + LOOP_PERIOD_S - time.monotonic(), due - now)
+        rest = min(self._passed + self.autopilot.read_period(now) - time.monotonic(), due - now)
         if rest > 0.0:
             time.sleep(rest)
             now = self.clock()
