@@ -119,6 +119,42 @@ def test_corrupt_jpeg_from_the_camera_is_a_corrupt_frame() -> None:
     assert exc.value.reason == "corrupt_frame"
 
 
+def test_jpeg_decodes_to_rgb_exactly_as_bgr_swapped() -> None:
+    """An MJPEG frame decoded straight to RGB (`_to_rgb`) is the BGR decode's pixels in RGB order, bit for bit."""
+    from taco_mav.camera.sources import _to_rgb
+
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(0, 255, (72, 128, 3), dtype=np.uint8), (0, 0), 1.5)
+    ok, jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    assert ok
+    rgb = _to_rgb(jpeg.reshape(1, -1))
+    bgr = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+    assert rgb.shape == (72, 128, 3) and rgb.dtype == np.uint8
+    assert np.array_equal(rgb, bgr[..., ::-1])
+    assert int(np.abs(rgb.astype(int) - img[..., ::-1]).max()) <= 40  # the picture encoded, within JPEG's loss
+
+
+def test_grey_frames_are_the_jpeg_luma_and_cached_apart(tmp_path: Path) -> None:
+    """`frame_near(..., grey=True)` of an MJPEG frame is its luma plane (OpenCV's grey decode), within JPEG's
+    rounding of the RGB frame's `COLOR_RGB2GRAY`, and is kept beside the RGB frame (each decoded once)."""
+    path = _mjpg(tmp_path / "clip.avi")
+    src = VideoSource(str(path))
+    src.start()
+    deadline = time.monotonic() + 5.0
+    while src.grabbed < 10 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    src.close()
+    if not src.encoded:
+        pytest.skip("this OpenCV's FFmpeg backend does not hand over MJPEG frames undecoded")
+    t_last, jpeg = src._frames[-1]
+    grey = src.frame_near(t_last, 0.001, grey=True)
+    rgb = src.frame_near(t_last, 0.001)
+    assert grey is not None and rgb is not None and grey[1].shape == (24, 32) and rgb[1].shape == (24, 32, 3)
+    assert np.array_equal(grey[1], cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE))
+    assert np.abs(grey[1].astype(int) - cv2.cvtColor(rgb[1], cv2.COLOR_RGB2GRAY)).max() <= 2
+    assert src.frame_near(t_last, 0.001, grey=True) is grey and src.frame_near(t_last, 0.001) is rgb
+
+
 def test_video_source_unopenable() -> None:
     with pytest.raises(ConfigError):
         VideoSource("/nonexistent/clip.avi").start()

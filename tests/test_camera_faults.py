@@ -11,6 +11,7 @@ import re
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from fault_helpers import (ORIGIN_LAT, ORIGIN_LON, noise_image, run_pipeline, small_camera_profile, straight_drive,
@@ -52,6 +53,37 @@ def test_guard_verdicts() -> None:
     assert _reason(g, (5.3, noise_image(2)), 5.3) == "ok"  # the camera lives again
     quiet = FrameGuard(160, 120, 0.15, check_frozen=False)  # a renderer (world:) repeats itself legitimately
     assert _reason(quiet, (1.0, img), 1.0) == "ok" and _reason(quiet, (1.1, img), 1.1) == "ok"
+
+
+@pytest.mark.parametrize("step, verdict", [(3, "blank_frame"), (5, "ok")])
+def test_guard_blank_is_the_std_of_every_4th_pixel(step: int, verdict: str) -> None:
+    """Blank means a grey-level std under min_std (2) over every 4th pixel of every 4th row, all channels: half
+    of those pixels 100 and half 100 + step is a std of step / 2 (1.5: blank; 2.5: not), whatever lies between."""
+    img = np.full((120, 160, 3), 100, np.uint8)
+    img[1::4, 1::4] = 250  # off the subsample: never seen
+    img[::8, ::4] = 100 + step  # every other subsampled row
+    assert _reason(FrameGuard(160, 120, max_gap_s=0.15), (5.0, img), 5.0) == verdict
+
+
+def test_grey_guard_takes_grey_frames_only() -> None:
+    """A grey guard (camera speed) passes grey (H, W) frames and vets them as the RGB one does; RGB is a bad shape."""
+    g = FrameGuard(160, 120, max_gap_s=0.15, grey=True)
+    img = noise_image(1)
+    grey = np.ascontiguousarray(img[..., 0])
+    assert _reason(g, (5.0, grey), 5.0) == "ok"
+    assert _reason(g, (5.0, img), 5.0) == "bad_shape"
+    assert _reason(g, (5.0, np.zeros_like(grey)), 5.0) == "blank_frame"
+    assert _reason(g, (5.1, grey.copy()), 5.1) == "frozen_frame"
+    t, out = g.check((5.2, np.ascontiguousarray(noise_image(2)[..., 1])), 5.2)
+    assert t == 5.2 and out.shape == (120, 160) and out.dtype == np.uint8
+
+
+def test_folder_grey_is_the_rgb_frame_in_grey(tmp_path: Path) -> None:
+    src = FolderSource(write_folder(tmp_path / "a", [noise_image(0), noise_image(1)]))
+    t, rgb = src.frame_near(0.0, 0.05)
+    tg, grey = src.frame_near(0.0, 0.05, grey=True)
+    assert t == tg and grey.shape == (120, 160)
+    assert np.array_equal(grey, cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
 
 
 def test_folder_corrupt_and_empty(tmp_path: Path) -> None:

@@ -181,6 +181,40 @@ def test_signal_stops_clean(tmp_path: Path, sig: int, code: int) -> None:
     assert kinds[:2] == ["origin", "start"] and kinds[-1] == "stop"  # --origin is set before start
 
 
+@pytest.mark.parametrize("period_s, lo, hi", [(0.1, 9.0, 17.0), (0.05, 18.0, 27.0), (0.0, 45.0, 600.0)])
+def test_loop_reads_the_link_at_most_every_loop_period(monkeypatch: pytest.MonkeyPatch, period_s: float, lo: float,
+                                                      hi: float) -> None:
+    """RAW_IMU at 100 Hz and ATTITUDE at 50 Hz: the loop reads the link 1 / LOOP_PERIOD_S times a second (the 5 Hz
+    outputs and 1 Hz heartbeats mostly among them; at each arrival while a TIMESYNC answer is awaited, a few ms a
+    second), every sample still reaching the filter, GPS_INPUT still at 5 Hz and the TIMESYNC offset within 20 ms
+    (a reply read in the next batch made it 47 ms late at 0.1 s); with 0 it reads at every arrival, as before."""
+    from taco_mav.daemon import autopilot
+    from taco_mav.mavlink.connection import Link
+
+    reads: list[float] = []
+    recv = Link.recv
+    monkeypatch.setattr(autopilot, "LOOP_PERIOD_S", period_s)
+    monkeypatch.setattr(Link, "recv", lambda self, timeout: reads.append(time.monotonic()) or recv(self, timeout))
+    port = free_udp_port()
+    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    daemon.start()
+    time.sleep(0.2)
+    ap = MiniAutopilot(port)
+    ap.start()
+    time.sleep(3.0)
+    daemon.stop()
+    daemon.join(5.0)
+    ap.stop()
+    t = np.array(reads)
+    per_s = float(np.sum(t > t[-1] - 2.0)) / 2.0  # the last 2 s, well after the start
+    assert lo <= per_s <= hi, per_s
+    assert daemon.stats.imu_samples >= 0.9 * 100.0 * 2.5, daemon.stats.imu_samples
+    gps = np.array([r.t for r in ap.of_type("GPS_INPUT")])
+    assert (len(gps) - 1) / (gps[-1] - gps[0]) == pytest.approx(5.0, rel=0.05)
+    assert daemon.clockmap.source == "timesync"
+    assert abs(daemon.clockmap.offset - (ap.boot_s - ap.t_start)) < 0.02
+
+
 def test_stall_degrades_and_reboot_reanchors() -> None:
     """IMU silent 1.0-1.8 s (fix_type 1 while stalled), then the autopilot clock restarts at 1 s: the daemon
     re-anchors at its estimate, says so in a STATUSTEXT, and carries on with fix_type 3 near the truth."""

@@ -43,7 +43,8 @@ class Crop:
 
 @dataclass(frozen=True)
 class GroundFrame:
-    """A ground camera frame. image: uint8 RGB (H, W, 3); t: capture time on the autopilot clock, s;
+    """A ground camera frame. image: uint8 RGB (H, W, 3) (grey (H, W) where the consumer asked for grey: the
+    daemon's camera speed); t: capture time on the autopilot clock, s;
     camera: its flat-ground pinhole model."""
 
     image: np.ndarray

@@ -108,6 +108,7 @@ class Daemon:
         self.link: Link | None = None
         self.exit_code: int | None = None
         self._thread: threading.Thread | None = None
+        self._passed = -math.inf  # wall s (time.monotonic) of the last read of the link
 
     @staticmethod
     def _dispatch_table(*tables: dict[str, Handler]) -> dict[str, Handler]:
@@ -234,11 +235,17 @@ class Daemon:
 
     # ------------------------------------------------------------------ loop
     def _step(self) -> None:
-        """One loop pass: receive (at most until the next output or heartbeat is due), handle, collect fixes."""
+        """One loop pass: receive (autopilot.read_period after the last read, or when an output or heartbeat is
+        due), handle, collect fixes."""
         now = self.clock()
-        timeout = min(0.02, max(0.0, min(self.outputs.next_due, self.autopilot.next_due) - now))
+        due = min(self.outputs.next_due, self.autopilot.next_due)
+        rest = min(self._passed + self.autopilot.read_period(now) - time.monotonic(), due - now)
+        if rest > 0.0:
+            time.sleep(rest)
+            now = self.clock()
         assert self.link is not None
-        msgs = self.link.recv(timeout)
+        msgs = self.link.recv(min(0.02, max(0.0, due - now)))
+        self._passed = time.monotonic()
         received = time.perf_counter()
         for msg in msgs:
             try:

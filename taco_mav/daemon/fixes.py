@@ -260,9 +260,9 @@ class FixPipeline:
         return self.frame_fetcher(q.capture_t)
 
     def frame_fetcher(self, capture_t: float, guard: FrameGuard | None = None) -> FetchFn | None:
-        """A callable (run in a worker thread) that returns the camera's frame nearest autopilot time
-        `capture_t` (s) as a GroundFrame stamped on the autopilot clock, vetted by `guard` (default the fix
-        pipeline's; another user of the camera keeps its own, so its frames do not look frozen to this one);
+        """A callable (run in a worker thread) that returns the camera's frame nearest autopilot time `capture_t`
+        (s) as a GroundFrame on the autopilot clock, vetted by `guard` (default the fix pipeline's; another user
+        of the camera keeps its own, so its frames do not look frozen to it; a grey guard's frames are grey);
         None without a camera or, for a companion-clock camera, before the clocks are mapped."""
         cam, gap = self.camera, self.opt.frame_max_gap_s
         if cam is None:
@@ -278,7 +278,7 @@ class FixPipeline:
             t_src, back = capture_t - off, off
 
         def fetch() -> GroundFrame:
-            t_frame, image = guard.check(cam.frame_near(t_src, max(gap, STALE_LOOK_S)), t_src)
+            t_frame, image = guard.check(cam.frame_near(t_src, max(gap, STALE_LOOK_S), guard.grey), t_src)
             return GroundFrame(image, t_frame + back, self.ground_camera)
 
         return fetch

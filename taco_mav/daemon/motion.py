@@ -54,11 +54,13 @@ class MotionPipeline:
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         cam = fixes.ground_camera
         self.motion = GroundMotion(cam, ego_rows=fixes.profile.classical.ego_mask_rows)
-        # frames undistorted as for fixes; a real (noisy) camera never gives the same picture twice: a repeat is a
-        # hung driver, whose frames would read as a stop (a noiseless renderer repeats itself legitimately)
+        # frames undistorted as for fixes, grey (the BEV is grey: a JPEG's luma alone is decoded); a real (noisy)
+        # camera never gives the same picture twice: a repeat is a hung driver, whose frames would read as a stop (a
+        # noiseless renderer repeats itself legitimately)
         source = fixes.camera
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
-                                check_frozen=source is not None and not source.noiseless, rectifier=fixes.rectifier)
+                                check_frozen=source is not None and not source.noiseless, rectifier=fixes.rectifier,
+                                grey=True)
         self.counts: Counter[str] = Counter()
         self.headings = HeadingHistory()
         self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)

@@ -16,6 +16,7 @@ from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from taco_mav.camera.calibration import LensCalibration
@@ -107,7 +108,7 @@ class WorldSource:
     def start(self) -> None:
         pass
 
-    def frame_near(self, t: float, max_gap_s: float) -> tuple[float, np.ndarray] | None:
+    def frame_near(self, t: float, max_gap_s: float, grey: bool = False) -> tuple[float, np.ndarray] | None:
         with self._lock:
             if not self._poses:
                 return None
@@ -118,7 +119,8 @@ class WorldSource:
             frame = self.renderer.render(np.array(best[1:]), best[0] - (self._t0 or 0.0))
         else:
             frame = self.renderer.render(np.array(best[1:]))
-        return (best[0], frame) if self.faults is None else self.faults.apply(best[0], frame)
+        got = (best[0], frame) if self.faults is None else self.faults.apply(best[0], frame)
+        return got if not grey or got is None else (got[0], cv2.cvtColor(got[1], cv2.COLOR_RGB2GRAY))
 
     def close(self) -> None:
         if self.is_3d:
