@@ -87,10 +87,9 @@ def _mjpg(path: Path, frames: int = 10, fps: float = 50.0) -> Path:
     return path
 
 
-def test_mjpeg_video_is_decoded_only_when_asked(tmp_path: Path) -> None:
-    """An MJPEG file is grabbed undecoded (JPEG bytes in the ring, as a USB camera's MJPEG stream) and only the
-    frame asked for is decoded: the same picture as OpenCV decoding every frame (within JPEG decoders' rounding)."""
-    path = _mjpg(tmp_path / "clip.avi")
+def _grabbed(path: Path) -> VideoSource:
+    """A VideoSource of the MJPG file `path` that has grabbed its 10 frames (closed); skips where this OpenCV's
+    FFmpeg backend decodes MJPEG itself (no undecoded frames to test)."""
     src = VideoSource(str(path))
     src.start()
     deadline = time.monotonic() + 5.0
@@ -99,6 +98,14 @@ def test_mjpeg_video_is_decoded_only_when_asked(tmp_path: Path) -> None:
     src.close()
     if not src.encoded:
         pytest.skip("this OpenCV's FFmpeg backend does not hand over MJPEG frames undecoded")
+    return src
+
+
+def test_mjpeg_video_is_decoded_only_when_asked(tmp_path: Path) -> None:
+    """An MJPEG file is grabbed undecoded (JPEG bytes in the ring, as a USB camera's MJPEG stream) and only the
+    frame asked for is decoded: the same picture as OpenCV decoding every frame (within JPEG decoders' rounding)."""
+    path = _mjpg(tmp_path / "clip.avi")
+    src = _grabbed(path)
     assert src.grabbed == 10 and all(f.ndim == 2 and f.shape[0] == 1 for _, f in src._frames)
     t_last = src._frames[-1][0]
     got = src.frame_near(t_last, 0.001)
@@ -138,14 +145,7 @@ def test_grey_frames_are_the_jpeg_luma_and_cached_apart(tmp_path: Path) -> None:
     """`frame_near(..., grey=True)` of an MJPEG frame is its luma plane (OpenCV's grey decode), within JPEG's
     rounding of the RGB frame's `COLOR_RGB2GRAY`, and is kept beside the RGB frame (each decoded once)."""
     path = _mjpg(tmp_path / "clip.avi")
-    src = VideoSource(str(path))
-    src.start()
-    deadline = time.monotonic() + 5.0
-    while src.grabbed < 10 and time.monotonic() < deadline:
-        time.sleep(0.02)
-    src.close()
-    if not src.encoded:
-        pytest.skip("this OpenCV's FFmpeg backend does not hand over MJPEG frames undecoded")
+    src = _grabbed(path)
     t_last, jpeg = src._frames[-1]
     grey = src.frame_near(t_last, 0.001, grey=True)
     rgb = src.frame_near(t_last, 0.001)
