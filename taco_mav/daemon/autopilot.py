@@ -21,11 +21,14 @@ from taco_mav.mavlink.timesync import ClockMap
 
 log = logging.getLogger(__name__)
 
-# Wall s the daemon loop leaves between its reads of the link, unless an output or a heartbeat is due (what came in
-# meanwhile is handled at once; outputs read the link first). A pass pays a fixed round (fix results, camera speed,
-# schedules) and cold caches: the companion bench's loop took 0.069 core at 63 passes a second (a read at every
-# arrival, 20 ms at most), 0.042 at 20, 0.035 at 10 (thread CPU over the mission).
+# Companion s the daemon loop leaves between its reads of the link, unless an output or a heartbeat is due (what
+# came in meanwhile is handled at once; outputs read the link first). A pass pays a fixed round (fix results, camera
+# speed, schedules) and cold caches: the companion bench's loop took 0.069 core at 63 passes a second (a read at
+# every arrival, 20 ms at most), 0.042 at 20, 0.035 at 10 (thread CPU over the mission). On the companion clock, so
+# that a simulator's faster clock is read as often in its own time (a recorder at 10 Hz of a 5x simulator kept 79
+# frames of 25 s on a wall-clock period); the loop waits in steps of at most WAKE_S wall s, LOOP_PERIOD_S at most.
 LOOP_PERIOD_S = 0.1
+WAKE_S = 0.02
 
 __all__ = ["AutopilotLink"]
 
@@ -65,7 +68,7 @@ class AutopilotLink:
             self.t_timesync.restart(now)
 
     def read_period(self, now: float) -> float:
-        """Wall s the daemon loop may leave between its reads of the link at companion time `now`: LOOP_PERIOD_S,
+        """Companion s the daemon loop may leave between its reads of the link at companion time `now`: LOOP_PERIOD_S,
         or 0 while our TIMESYNC request's answer is awaited (its handling time is the measurement: read in the
         next batch, the offset read half the wait late, 47 ms at 0.1 s)."""
         return 0.0 if now < self.awaiting_until else LOOP_PERIOD_S

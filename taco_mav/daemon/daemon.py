@@ -34,7 +34,7 @@ from taco_mav.core import kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
 from taco_mav.daemon.anchor import Anchor
-from taco_mav.daemon.autopilot import AutopilotLink
+from taco_mav.daemon.autopilot import WAKE_S, AutopilotLink
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gnss import GnssTracker
@@ -80,8 +80,7 @@ class Daemon:
             matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
                                else options.matcher_timeout_s))
         self.profile, self.opt = profile, options
-        # Without the kernels built ahead of time (core/ukf_aot.py) the first run compiles them (numba: seconds, a
-        # minute on a busy machine): here, before `start()` opens the link, so the loop never stalls mid-drive.
+        # Not built ahead of time (core/ukf_aot.py), numba compiles the kernels here, never in the loop mid-drive
         started = time.perf_counter()
         kernels.warm_up()
         log.debug("filter kernels ready in %.1f s", time.perf_counter() - started)
@@ -108,7 +107,8 @@ class Daemon:
         self.link: Link | None = None
         self.exit_code: int | None = None
         self._thread: threading.Thread | None = None
-        self._passed = -math.inf  # wall s (time.monotonic) of the last read of the link
+        self._passed = -math.inf  # companion s of the last read of the link
+        self._wake = math.inf if clock is time.monotonic else WAKE_S  # wall s of a wait's step (simulators)
 
     @staticmethod
     def _dispatch_table(*tables: dict[str, Handler]) -> dict[str, Handler]:
@@ -235,17 +235,17 @@ class Daemon:
 
     # ------------------------------------------------------------------ loop
     def _step(self) -> None:
-        """One loop pass: receive (autopilot.read_period after the last read, or when an output or heartbeat is
-        due), handle, collect fixes."""
+        """One pass: receive (a read period after the last, or an output or heartbeat due), handle, collect fixes."""
         now = self.clock()
         due = min(self.outputs.next_due, self.autopilot.next_due)
-        rest = min(self._passed + self.autopilot.read_period(now) - time.monotonic(), due - now)
-        if rest > 0.0:
-            time.sleep(rest)
+        period = self.autopilot.read_period(now)  # companion s; waited for at most as long in wall s
+        until, give_up = min(self._passed + period, due), time.monotonic() + period
+        while now < until and time.monotonic() < give_up:  # short steps: a simulator's clock may run faster
+            time.sleep(min(until - now, self._wake))
             now = self.clock()
         assert self.link is not None
         msgs = self.link.recv(min(0.02, max(0.0, due - now)))
-        self._passed = time.monotonic()
+        self._passed = self.clock()
         received = time.perf_counter()
         for msg in msgs:
             try:
@@ -253,6 +253,7 @@ class Daemon:
             except Exception:  # noqa: BLE001 - one bad message must never stop the loop
                 log.exception("handling %s", msg.get_type())
                 self.stats.dropped["handler_error"] += 1
+        self.outputs.tick(self.clock())  # a due output goes before the fixes' replays and the camera's speed
         loc, generation, twin = self.state.loc, self.state.anchor.generation, self.state.twin
         self.fixes.drain(loc, generation, twin)
         self.fixes.poll(loc, generation, twin)
