@@ -6,9 +6,10 @@ a synthetic world at the simulator's true pose (SIMSTATE) for simulation, is reg
 Every source answers `frame_near(t, max_gap_s) -> (t_frame, RGB uint8 (H, W, 3)) | None`, or with `grey=True`
 the frame as grey uint8 (H, W) (camera speed needs no colour: a JPEG's own luma, decoded without its colour
 planes, 1.6 ms a 1280x720 frame against 3.4 ms in RGB; a colour frame converted with the RGB weights, as
-`cv2.COLOR_RGB2GRAY` converts the RGB frame). Times are seconds on the source's `clock`: the companion's monotonic clock for live cameras (stamped at grab), the autopilot clock
-for the folder (frame i at stamp_i - stamp_0 + offset) and world sources (the autopilot time of the SIMSTATE
-pose). The daemon maps query capture times onto that clock before asking.
+`cv2.COLOR_RGB2GRAY` converts the RGB frame). Times are seconds on the source's `clock`: the companion's
+monotonic clock for live cameras (stamped at grab), the autopilot clock for the folder (frame i at
+stamp_i - stamp_0 + offset) and world sources (the autopilot time of the SIMSTATE pose). The daemon maps query
+capture times onto that clock before asking.
 
 Spec strings (`--camera`): "SCHEME:BODY" of a registered scheme (`register_camera_scheme`; "world:DIR"),
 "folder:DIR[@OFFSET_S]" or an existing directory, "0" (device index), a video file, "rtsp://..." (any
@@ -172,7 +173,7 @@ class VideoSource:
             with self._lock:
                 self._frames.append((t, frame))
             self.grabbed += 1
-            self.encoded = self.encoded or (frame.ndim == 2 and frame.shape[0] == 1)  # GStreamer's image/jpeg too
+            self.encoded = self.encoded or _jpeg(frame)  # GStreamer's image/jpeg too
             if period:
                 next_t += period
                 self._stop.wait(max(0.0, next_t - self._clock()))
@@ -221,24 +222,33 @@ def _keep_jpeg(cap: cv2.VideoCapture) -> bool:
 _IMREAD_RGB: int | None = getattr(cv2, "IMREAD_COLOR_RGB", None)
 
 
+def _jpeg(frame: np.ndarray) -> bool:
+    """Whether a grabbed frame is an undecoded MJPEG frame (its JPEG bytes as one row of uint8)."""
+    return frame.ndim == 2 and frame.shape[0] == 1
+
+
+def _decode(jpeg: np.ndarray, flags: int) -> np.ndarray:
+    """An undecoded MJPEG frame decoded with imdecode `flags`; FrameRejected("corrupt_frame") when it does not."""
+    img = cv2.imdecode(jpeg, flags)
+    if img is None:
+        raise FrameRejected("corrupt_frame", "a JPEG frame from the camera does not decode")
+    return img
+
+
 def _to_rgb(frame: np.ndarray) -> np.ndarray:
     """A grabbed frame (BGR or grey image, or JPEG bytes as one row of uint8) as RGB uint8 (H, W, 3)."""
-    if frame.ndim == 2 and frame.shape[0] == 1:  # an undecoded MJPEG frame
-        img = cv2.imdecode(frame, cv2.IMREAD_COLOR if _IMREAD_RGB is None else _IMREAD_RGB)
-        if img is None:
-            raise FrameRejected("corrupt_frame", "a JPEG frame from the camera does not decode")
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if _IMREAD_RGB is None else img
+    if _jpeg(frame):
+        if _IMREAD_RGB is not None:
+            return _decode(frame, _IMREAD_RGB)
+        return cv2.cvtColor(_decode(frame, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB) if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2RGB)
 
 
 def _to_grey(frame: np.ndarray) -> np.ndarray:
     """A grabbed frame (BGR or grey image, or JPEG bytes as one row of uint8) as grey uint8 (H, W): a JPEG's luma
     plane (its colour planes are not decoded), a BGR image with the RGB weights (`cv2.COLOR_BGR2GRAY`)."""
-    if frame.ndim == 2 and frame.shape[0] == 1:  # an undecoded MJPEG frame
-        img = cv2.imdecode(frame, cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise FrameRejected("corrupt_frame", "a JPEG frame from the camera does not decode")
-        return img
+    if _jpeg(frame):
+        return _decode(frame, cv2.IMREAD_GRAYSCALE)
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
 
 

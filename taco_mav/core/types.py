@@ -10,7 +10,6 @@ Frames and units (see DESIGN.md):
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 
 import numpy as np

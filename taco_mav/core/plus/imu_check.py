@@ -80,16 +80,19 @@ class UnaidedTrack:
         self.x += step * math.cos(theta)
         self.y += step * math.sin(theta)
 
+    def tau(self) -> float:
+        """Seconds since the reset (0 before the first)."""
+        return max(self.t - self.t0, 0.0) if self.started else 0.0
+
     def sigma(self) -> float:
         """The unaided track's 1-sigma position error relative to the estimate at the reset, metres."""
-        tau = max(self.t - self.t0, 0.0) if self.started else 0.0
+        tau = self.tau()
         return self.sigma_v0 * tau + 0.5 * (self.sigma_b + self.accel_sigma) * tau * tau
 
     def sigma_speed(self) -> float:
         """The unaided track's 1-sigma speed error, m/s: sigma_v0 + (sigma_b + accel_sigma) tau, the derivative of
         `sigma()`; after a long time without fixes its speed is worth little."""
-        tau = max(self.t - self.t0, 0.0) if self.started else 0.0
-        return self.sigma_v0 + (self.sigma_b + self.accel_sigma) * tau
+        return self.sigma_v0 + (self.sigma_b + self.accel_sigma) * self.tau()
 
     def check(self, xy: tuple[float, float], speed: float, sigma_est_m: float) -> Disagreement | None:
         """Compare the estimate (position ENU m, speed m/s, its 1-sigma m) with the unaided track; the
