@@ -61,6 +61,8 @@ class MiniAutopilot:
     outage: tuple[float, float] | None = None  # (from, to) elapsed s: connection closed, nothing sent or read
     streams_reset_at: float | None = None  # elapsed s: RAW_IMU at 1 Hz from then until asked for again
     imu_asked_again_at: float | None = None  # elapsed s of the first SET_MESSAGE_INTERVAL RAW_IMU after the reset
+    port_defaults_until: float | None = None  # elapsed s: RAW_IMU at 0.5 Hz until then (its grant comes late), and
+    # SCALED_IMU2 at 2 Hz throughout (ArduPilot's SRn_RAW_SENS sends it beside RAW_IMU at 1-4 Hz)
     transport: str = "udp"  # "udp": udpout to the daemon's udpin; "tcp": a server on `port` (daemon: tcp:)
     udp_local_port: int | None = None  # UDP source port (None: ephemeral, a new one after an outage)
     gps_s: float = 1.0  # GPS2_RAW (3D fix, 4 Hz) for this long after start (GPS1 is the daemon's GPS_INPUT)
@@ -157,8 +159,13 @@ class MiniAutopilot:
                 k_att += 1
             slow = self.streams_reset_at is not None and el >= self.streams_reset_at and \
                 self.imu_asked_again_at is None
+            defaults = self.port_defaults_until is not None and el < self.port_defaults_until
             while k_imu / self.imu_hz <= el:
-                if slow and k_imu % int(self.imu_hz):  # at 1 Hz
+                every = 2 * int(self.imu_hz) if defaults else int(self.imu_hz) if slow else 1  # 0.5 Hz, 1 Hz
+                half = int(self.imu_hz) // 2
+                if self.port_defaults_until is not None and not stalled and k_imu % half == half // 2:  # 2 Hz
+                    mav.scaled_imu2_send(int(self.ap_time(k_imu / self.imu_hz) * 1e3), 0, 0, -1000, 0, 0, 0, 0, 0, 0)
+                if k_imu % every:
                     k_imu += 1
                     continue
                 if not stalled and self.flavour == "px4":

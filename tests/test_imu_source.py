@@ -1,7 +1,8 @@
 """IMU and attitude source selection (daemon/imu_source.py): the first *valid* sample chooses, a source silent for
-1 s gives way to one that delivers, a pinned source is kept; ATTITUDE_QUATERNION decodes like ATTITUDE. Live
-over real UDP on 127.0.0.1: corrupt IMU messages of other kinds first, then a fallback RAW_IMU -> SCALED_IMU
-and ATTITUDE -> ATTITUDE_QUATERNION; and a seeded fuzz run in "auto" mode with corrupt IMU messages first."""
+1 s gives way to one that delivers, the stream asked for is taken back once it streams, a pinned source is kept;
+ATTITUDE_QUATERNION decodes like ATTITUDE. Live over real UDP on 127.0.0.1: corrupt IMU messages of other kinds
+first, then a fallback RAW_IMU -> SCALED_IMU and ATTITUDE -> ATTITUDE_QUATERNION; and a seeded fuzz run in
+"auto" mode with corrupt IMU messages first."""
 
 from __future__ import annotations
 
@@ -65,6 +66,29 @@ def test_fallback_after_one_second_without_a_valid_sample() -> None:
     assert (sw.old, sw.new) == ("RAW_IMU", "SCALED_IMU") and sw.silent_s > 1.0 and sel.switches == 1
     assert sel.offer("RAW_IMU", True, t) is False  # the old one back: the new one stays
     assert sel.silent_s(t) < 0.02
+
+
+def test_the_stream_asked_for_is_returned_to_once_it_streams() -> None:
+    """RAW_IMU (asked for) at its port's 0.5 Hz and SCALED_IMU2 at 2 Hz before the grant: the fallback to
+    SCALED_IMU2, though SCALED_IMU2 never falls silent; a stray valid RAW_IMU, or four at 100 Hz, do not take it
+    back; five stamped 10 ms apart (RAW_IMU granted) do, and it is kept from then on."""
+    sel = SourceSelector(("RAW_IMU", "SCALED_IMU2"), timeout_s=1.0, preferred="RAW_IMU")
+    assert sel.offer("RAW_IMU", True, 0.0, 100.0) and sel.current == "RAW_IMU"
+    for k in range(1, 5):  # SCALED_IMU2 at 2 Hz; RAW_IMU's next sample is 2 s away
+        sel.offer("SCALED_IMU2", True, 0.5 * k, 100.0 + 0.5 * k)
+    assert sel.current == "SCALED_IMU2" and sel.switches == 1
+    assert not sel.offer("RAW_IMU", True, 2.01, 101.7)  # one stray sample
+    for k in range(4):  # four at 100 Hz, then a gap: not steady yet
+        assert not sel.offer("RAW_IMU", True, 2.2, 102.2 + 0.01 * k)
+    assert not sel.offer("RAW_IMU", True, 2.6, 102.6)
+    assert not sel.offer("RAW_IMU", False, 2.61, 102.61)  # a refused sample breaks the run too
+    used = [sel.offer("RAW_IMU", True, 3.0, 103.0 + 0.01 * k) for k in range(5)]
+    assert used == [False, False, False, False, True] and sel.current == "RAW_IMU" and sel.switches == 2
+    sw = sel.take_switch()
+    assert sw is not None and (sw.old, sw.new) == ("SCALED_IMU2", "RAW_IMU")
+    assert not sel.offer("SCALED_IMU2", True, 3.1, 103.1) and sel.offer("RAW_IMU", True, 3.1, 103.06)
+    with pytest.raises(ValueError):
+        SourceSelector(("RAW_IMU",), preferred="SCALED_IMU")
 
 
 def test_pinned_source_is_never_left() -> None:

@@ -121,6 +121,25 @@ def test_an_imu_stream_slowed_by_someone_else_is_asked_for_again(tmp_path: Path)
     assert len(last) >= 15 and all(g.fix_type == 3 and g.horiz_accuracy < 8.0 for g in last)
 
 
+def test_the_imu_asked_for_is_taken_back_from_a_port_default_stream(tmp_path: Path) -> None:
+    """Until the daemon's SET_MESSAGE_INTERVAL is granted, RAW_IMU comes at its port's default rate (0.5 Hz here)
+    and SCALED_IMU2 at 2 Hz beside it, so the daemon falls back to SCALED_IMU2; RAW_IMU at 100 Hz from 4 s on
+    takes over again, though SCALED_IMU2 is never silent (a CI run of ArduPilot SITL sat on SCALED_IMU2 at 1 Hz
+    for 150 s: every sample a time jump, none used, EKF3 never had a position). The estimate then tracks as
+    without the late grant."""
+    daemon, ap = _run("udp", tmp_path, drive_s=14.0, port_defaults_until=4.0)
+    s = daemon.summary()
+    assert daemon.exit_code == 0
+    assert s["sources"]["imu"]["source"] == "RAW_IMU" and s["sources"]["imu"]["switches"] == 2, s["sources"]
+    events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    moves = [(e["old"], e["new"]) for e in events if e["event"] == "input_source" and e["input"] == "imu"]
+    assert moves == [(None, "RAW_IMU"), ("RAW_IMU", "SCALED_IMU2"), ("SCALED_IMU2", "RAW_IMU")], moves
+    assert s["imu_samples"] >= 0.9 * 100 * (14.0 - 4.5), s["imu_samples"]  # every RAW_IMU sample after the grant
+    gps = ap.of_type("GPS_INPUT")
+    last = [r.msg for r in gps if r.t - ap.t_start > 10.0]
+    assert len(last) >= 15 and all(g.fix_type == 3 and g.horiz_accuracy < 8.0 for g in last)
+
+
 def test_link_watch_transitions() -> None:
     w = LinkWatch(timeout_s=3.0)
     assert not w.check(100.0)  # nothing heard yet: not "lost"
