@@ -168,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "GPS_GLOBAL_ORIGIN (default: the drive's start)")
     p.add_argument("--no-home", action="store_true", help="send neither HOME_POSITION nor GPS_GLOBAL_ORIGIN")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the companion's HEARTBEAT")
+    p.add_argument("--score-from", type=float, default=0.0, metavar="S", help="score the GPS_INPUT stream's rate, "
+                   "gaps and fix types from S s of drive time on (the companion's start-up; default 0)")
     _force(p, "the results")
     p.set_defaults(func=live.cmd_sim)
 

@@ -5,14 +5,19 @@ companion beside SITL --speedup runs): GPS_INPUT at output.rate_hz in the autopi
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from taco_mav.config import Estimator, load_profile
+from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.daemon.scheduler import AutopilotPeriodic, Periodic
 from taco_mav.mavlink.timesync import ClockMap, ClockRate
-from tests.test_live import run_live
+from tests.sim_helpers import free_udp_port
 
 
 def _feed(rate: ClockRate, speed: float, seconds: float, imu_hz: float = 100.0, latency_s: float = 0.003,
@@ -145,12 +150,38 @@ def held_out_world(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build_world(tmp_path_factory.mktemp("world") / "w", seed=11, length_km=0.3, progress=False)
 
 
-def test_sim_speed_5_without_lockstep(held_out_world: Path) -> None:
+def _beside_a_simulator_process(world: Path, out: Path, speed: float, duration_s: float,
+                                score_from_s: float) -> tuple[dict, dict]:
+    """The daemon (paper mode, the world's renderer as its camera, on the machine's own clocks) beside `taco-mav
+    sim` in its own process, free-running `speed` times faster than real time, as a companion beside SITL
+    --speedup, scored from `score_from_s` of drive time; returns (the drive's results.json entry, the daemon
+    summary). At 5x an output 9 ms late in wall time already breaks the autopilot's 245 ms rule: in one process
+    the simulator's threads shared the daemon's interpreter lock, and the daemon paces on the clock speed it
+    learns in its first 0.1-0.3 s, while the simulator's own start is still uneven (3.0, then 4.85, then 4.97):
+    two outputs in a row 74-117 ms apart in wall time came there, in a CI run and in 3 of 6 runs here."""
+    port = free_udp_port()
+    daemon = Daemon(load_profile("synthetic"), DaemonOptions(connect=f"udpin:127.0.0.1:{port}",
+                                                             camera=f"world:{world}", estimator=Estimator.PAPER))
+    daemon.start()
+    try:
+        sim = subprocess.run([sys.executable, "-m", "taco_mav.cli", "sim", "--drive", str(world), "--connect",
+                              f"udpout:127.0.0.1:{port}", "--out", str(out), "--speed", str(speed), "--duration",
+                              str(duration_s), "--wait", "10", "--score-from", str(score_from_s)],
+                             capture_output=True, text=True, timeout=180)
+    finally:
+        daemon.stop()
+        daemon.join(5.0)
+    assert sim.returncode == 0, sim.stderr[-2000:]
+    (seq,) = json.loads((out / "results.json").read_text())["sequences"].values()
+    return seq, daemon.summary()
+
+
+def test_sim_speed_5_without_lockstep(held_out_world: Path, tmp_path: Path) -> None:
     """The simulator 5x faster than real time, free-running; the daemon on time.monotonic / time.time (not the
-    simulator's clock), classical matcher on rendered frames: 5 Hz and ArduPilot's gap rules in autopilot time,
-    ATE <= 5 m."""
-    seq, summary = run_live(held_out_world, "synthetic", speed=5.0, camera=f"world:{held_out_world}",
-                            duration_s=40.0, sim_clock=False)
+    simulator's clock), classical matcher on rendered frames: after 2 s of drive time (0.4 s of wall time) to
+    learn the clock, 5 Hz and ArduPilot's gap rules in autopilot time, ATE <= 5 m."""
+    seq, summary = _beside_a_simulator_process(held_out_world, tmp_path / "sim", speed=5.0, duration_s=40.0,
+                                               score_from_s=2.0)
     assert summary["clock_speed"] == pytest.approx(5.0, rel=0.01)
     assert seq["gps_input_rate_hz"] == pytest.approx(5.0, rel=0.02), seq["gps_input_rate_hz"]
     assert seq["gps_input_interval_avg_ms"] < 215.0 and seq["consecutive_gaps_over_245ms"] == 0

@@ -79,6 +79,8 @@ def test_gps_input_rate_rules() -> None:
     s = mon.summary()
     assert s["consecutive_gaps_over_245ms"] == 1 and s["gaps_over_245ms"] == 2
     assert s["gps_input_interval_max_ms"] == pytest.approx(250.0)
+    late = mon.summary(start_t=t - 0.5)  # scored from after the first slow gap (`SimOptions.score_from_s`)
+    assert late["consecutive_gaps_over_245ms"] == 0 and late["gaps_over_245ms"] == 1 and late["gps_input_count"] == 3
 
 
 @pytest.mark.parametrize("kwargs", [dict(sats=5), dict(hdop=2.6), dict(hacc=5.1), dict(fix=2), dict(flags=2)])
@@ -142,6 +144,8 @@ def test_sim_clock_lockstep() -> None:
 def test_bad_options() -> None:
     with pytest.raises(ConfigError, match="--speed"):
         Simulator(_line_drive(), "udpout:127.0.0.1:9", speed=0.0)
+    with pytest.raises(ConfigError, match="--score-from"):
+        Simulator(_line_drive(), "udpout:127.0.0.1:9", score_from_s=-1.0)
 
 
 # --------------------------------------------------------------------------------------------- live

@@ -153,7 +153,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
                    gps2_type=args.gps2_type, gnss_noise_m=args.gnss_noise, seed=args.seed,
                    spoof_after_s=args.spoof_after, spoof_drift_mps=args.spoof_drift or 0.0,
                    spoof_jump_m=args.spoof_jump, home=tuple(home) if home else None, send_home=not args.no_home,
-                   wait_companion_s=args.wait)
+                   wait_companion_s=args.wait, score_from_s=args.score_from)
     for name, seq in doc["sequences"].items():
         print(sim_table(name, seq))
     print(f"wrote {out / 'results.json'}")

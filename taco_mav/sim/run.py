@@ -42,21 +42,21 @@ def simulate(drive: Path, connect: str, out: Path, speed: float = 1.0, *, deny_a
              gps2_type: int | None = None, gnss_noise_m: float = 1.0, seed: int = 0,
              spoof_after_s: float | None = None, spoof_drift_mps: float = 0.0, spoof_jump_m: float = 0.0,
              home: tuple[float, float, float] | None = None, send_home: bool = True,
-             wait_companion_s: float = 30.0) -> dict[str, Any]:
+             wait_companion_s: float = 30.0, score_from_s: float = 0.0) -> dict[str, Any]:
     """Play `drive` (KITTI raw drive folder or synthetic world folder) to the companion on `connect` until the
     drive (or `duration_s`) ends, then score the GPS_INPUT received and write `out/results.json`.
 
     deny_after_s: drive seconds of real GNSS before NO_FIX (0: never a fix; None: only the start-up fix, first
     second, or never denied when spoofing). gps1_type / gps2_type, gnss_noise_m, seed, spoof_*, home,
-    send_home: see `SimOptions`. Returns the results document. Ctrl-C stops playback early; what was played
-    is still scored and written, then KeyboardInterrupt propagates (the command exits 130).
+    send_home, score_from_s: see `SimOptions`. Returns the results document. Ctrl-C stops playback early; what
+    was played is still scored and written, then KeyboardInterrupt propagates (the command exits 130).
     """
     if deny_after_s is None:
         deny_after_s = math.inf if spoof_after_s is not None else 1.0
     opts = SimOptions(speed=speed, deny_after_s=deny_after_s, lockstep=lockstep, duration_s=duration_s,
                       gps1_type=gps1_type, gps2_type=gps2_type, gnss_noise_m=gnss_noise_m, seed=seed,
                       spoof_after_s=spoof_after_s, spoof_drift_mps=spoof_drift_mps, spoof_jump_m=spoof_jump_m,
-                      home=home, send_home=send_home, wait_companion_s=wait_companion_s)
+                      home=home, send_home=send_home, wait_companion_s=wait_companion_s, score_from_s=score_from_s)
     sim = Simulator(drive, connect, speed, options=opts)
     sim.start()
     interrupted = False

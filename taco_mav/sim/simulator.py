@@ -73,7 +73,11 @@ class SimOptions:
     long to wait for the companion's HEARTBEAT before playing anyway; drain_s: wall seconds to keep listening
     after the drive ends; boot_offset_s: autopilot uptime when the simulator starts; pose_stream: SIMSTATE (the
     true pose) at the data rate unasked (False: only once a companion asks for it, as an autopilot that has no
-    true pose to give, e.g. to measure what a run with a real camera costs, `taco_mav.bench.companion`)."""
+    true pose to give, e.g. to measure what a run with a real camera costs, `taco_mav.bench.companion`);
+    score_from_s: drive seconds played before the GPS_INPUT stream's rate, gaps and fix types are scored (a
+    companion's start-up; the track's errors are scored throughout): beside a free-running simulator the daemon
+    paces on a clock speed it learns from the IMU stamps in its first 0.1-0.3 s, while ArduPilot's GPS checks
+    want 10 s of good data before the EKF uses a receiver."""
 
     speed: float = 1.0
     deny_after_s: float = 1.0
@@ -95,6 +99,7 @@ class SimOptions:
     drain_s: float = 1.0
     boot_offset_s: float = 5.0
     pose_stream: bool = True
+    score_from_s: float = 0.0
     # one 5 Hz output period; the microsecond lets a companion whose grid is float-rounded past it still fire
     lockstep_lead_s: float = 0.200001
     # wall seconds to wait for a late GPS_INPUT: long enough for a companion stalled by a loaded machine (a
@@ -107,6 +112,8 @@ class SimOptions:
         """ConfigError for values out of range."""
         if not 0.0 < self.speed <= 100.0:
             raise ConfigError(f"--speed: {self.speed} is out of range (0 < speed <= 100)")
+        if self.score_from_s < 0:
+            raise ConfigError(f"--score-from: {self.score_from_s} must be >= 0 s")
         if self.deny_after_s < 0:
             raise ConfigError(f"--deny-after: {self.deny_after_s} must be >= 0 s")
         if self.duration_s is not None and self.duration_s <= 0:
@@ -449,7 +456,7 @@ class Simulator:
         start = self.play_start if self.play_start is not None else self.clock.now()
         end = self.play_end if self.play_end is not None else self.clock.now()
         seq = score_updates(self.drive, self.monitor.updates, start, end, self.denied_from_s)
-        seq.update(self.monitor.summary(end_t=end, start_t=start))
+        seq.update(self.monitor.summary(end_t=end, start_t=min(start + self.options.score_from_s, end)))
         seq.update(played_s=max(0.0, end - start), lockstep_timeouts=self.lockstep_timeouts,
                    statustext=[t for _, _, t in self.statustexts[-20:]],
                    not_measured=["ate_imu_only_m", "ate_smoothed_m", "steady_rmse_m", "fixes_per_km", "attempts",
