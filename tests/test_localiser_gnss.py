@@ -161,6 +161,23 @@ def test_a_dragged_receiver_is_rejected_and_the_output_stays_within_5_m(bearing,
     assert abs(events[0][0] - first) < 0.15
 
 
+@pytest.mark.parametrize("bearing, drag_velocity", [(270.0, True), (90.0, False), (None, None)])
+def test_a_drag_too_slow_for_the_shadow_tests_is_covered_by_the_reported_accuracy(bearing, drag_velocity):
+    """Honest for 60 s, then dragged at 0.2 m/s (issue 31: the shadow tests do not see it; 30 s later it was 6.8 m
+    off with 1.3-1.5 m reported, 44-79 % within 2 sigma): a camera check every camera_interval_s floors the
+    reported accuracy at the camera fix's distance from the readings, so the reports cover the error while the
+    drag lasts. (None: an honest receiver, whose wandering bias the floor covers too.)"""
+    d, samples = drive()
+    fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, spoof_after=None if bearing is None else 60.0,
+                     bearing=bearing or 0.0, drag_velocity=bool(drag_velocity), drift=0.2)
+    _, rec, _, queries = run(d, samples, fixes, PLUS, matcher=OracleMatcher(d, seed=2), latency=0.5)
+    w = window(rec, 10.0, 100.0)
+    ratio = np.hypot(w[:, 1], w[:, 2]) / w[:, 3]
+    assert np.mean(ratio <= 2.0) >= 0.95 and ratio.max() <= 3.0, (np.mean(ratio <= 2.0), ratio.max())
+    checks = sum(q.reason == "gnss_check" for q in queries if q.capture_t < 60.0)
+    assert checks >= 60.0 / PLUS.gnss.camera_interval_s - 2
+
+
 def test_paper_mode_rejects_a_velocity_drag():
     d, samples = drive()
     fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, spoof_after=60.0, bearing=90.0)
@@ -192,10 +209,11 @@ def test_camera_at_a_low_duty_while_gnss_is_healthy_and_late_fixes_replay_the_gn
     fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, until=60.0)
     loc, rec, outs, queries = run(d, samples, fixes, PLUS, matcher=OracleMatcher(d, seed=3), latency=1.0)
     during = [q for q in queries if q.capture_t < 60.0]
-    assert 2 <= len(during) <= 4 and all(q.reason == "gnss_check" for q in during[1:])
+    due = 60.0 / PLUS.gnss.camera_interval_s  # asked for whether or not the covariance trigger wants one
+    assert due - 2 <= len(during) <= due + 1 and all(q.reason == "gnss_check" for q in during[1:])
     gaps = np.diff([q.capture_t for q in during])
     assert np.all(gaps >= PLUS.gnss.camera_interval_s - 0.2)
-    after = [q for q in queries if q.capture_t >= 60.0]
+    after = [q for q in queries if q.capture_t >= 60.0 + PLUS.gnss.gap_s]  # the receiver is lost gap_s after
     assert after and after[0].capture_t < 72.0 and all(q.reason != "gnss_check" for q in after)
     assert sum(o.accepted for o in loc.outcomes if o.capture_t < 60.0) >= 2
     assert used(outs) == 1.0

@@ -378,8 +378,9 @@ class Localiser:
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
         """The current estimate: the filter's (`filter_estimate`) with the mode's reported accuracy (taco+: the
-        fixes' variance factor, floors) and its state in `extra`."""
-        return self.mode.estimate(self.filter_estimate())
+        fixes' variance factor, floors) and its state in `extra`; while a receiver is fused, at least what the
+        last camera check saw of its error (`GnssFusion.report`)."""
+        return self.gnss.report(self.mode.estimate(self.filter_estimate()))
 
     def filter_estimate(self) -> Estimate:
         """The filter's own estimate: UKF position and heading at the last frame plus the displacement and turn

@@ -27,6 +27,7 @@ the true course onto the grid); sigmas 1-sigma m and m/s; times autopilot second
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 
@@ -45,7 +46,7 @@ from taco_mav.core.gnss.shadow import Anchor, DeadReckoner, DrSnap
 from taco_mav.core.host import Host
 from taco_mav.core.mode import Mode
 from taco_mav.core.preintegration import wrap_angle
-from taco_mav.core.types import GnssFix, GnssOutcome
+from taco_mav.core.types import Estimate, GnssFix, GnssOutcome
 from taco_mav.core.ukf import fix_covariance
 
 Plan = tuple[str, float, np.ndarray]  # a trigger's (reason, forward bias m, body offsets (K, 2) m)
@@ -260,13 +261,16 @@ class GnssFusion:
     # ------------------------------------------------------------------ camera duty while GNSS is healthy
     def plan(self, plan: Plan | None) -> Plan | None:
         """Filter the trigger's plan (reason, bias, offsets): while the GNSS is healthy a camera fix is due
-        every camera_interval_s only (camera_check_s while the guard is suspicious). From `_maybe_trigger`."""
+        every camera_interval_s (camera_check_s while the guard is suspicious), and only then. From
+        `_maybe_trigger`."""
         g, gp = self.guard, self.p
-        if plan is not None and g is not None and g.healthy_at(self.host.t):
+        if g is not None and g.healthy_at(self.host.t):
             since = self.host.t - self._query_t
             if since < gp.camera_interval_s and not (g.suspect and since >= gp.camera_check_s):
                 return None
-            plan = ("gnss_check", plan[1], plan[2])
+            # due whether or not the mode's trigger wants a fix (fused readings keep its covariance small): one
+            # crop where the filter is, unless the trigger planned a search
+            plan = ("gnss_check", plan[1], plan[2]) if plan is not None else ("gnss_check", 0.0, np.zeros((1, 2)))
         if plan is not None:
             self._query_t = self.host.t
         return plan
@@ -281,6 +285,16 @@ class GnssFusion:
     def in_use(self) -> bool:
         """A reading accepted within the guard's gap_s of now."""
         return self.guard is not None and self.guard.healthy_at(self.host.t)
+
+    def report(self, est: Estimate) -> Estimate:
+        """The reported estimate while a receiver is in use: its horizontal 1-sigma at least the guard's camera
+        floor (`GnssGuard.camera_floor_m`: the last camera check's distance from the readings, when beyond its
+        noise). Unchanged otherwise."""
+        floor = self.guard.camera_floor_m if self.in_use and self.guard is not None else 0.0
+        lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
+        if lo >= floor * floor:
+            return est
+        return dataclasses.replace(est, cov_xy=est.cov_xy + (floor * floor - lo) * np.eye(2))
 
     def take_events(self) -> list[tuple[float, str, str]]:
         """(t, kind, detail) of "gnss_rejected" / "gnss_accepted" since the last call (detail: the figures)."""
