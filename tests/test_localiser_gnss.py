@@ -161,16 +161,19 @@ def test_a_dragged_receiver_is_rejected_and_the_output_stays_within_5_m(bearing,
     assert abs(events[0][0] - first) < 0.15
 
 
-@pytest.mark.parametrize("bearing, drag_velocity", [(270.0, True), (90.0, False), (None, None)])
-def test_a_drag_too_slow_for_the_shadow_tests_is_covered_by_the_reported_accuracy(bearing, drag_velocity):
+@pytest.mark.parametrize("bearing, drag_velocity, rate, latency", [(270.0, True, 5.0, 0.5), (90.0, False, 2.0, 0.25),
+                                                                  (None, None, 5.0, 0.5)])
+def test_a_drag_too_slow_for_the_shadow_tests_is_covered_by_the_reported_accuracy(bearing, drag_velocity, rate,
+                                                                                   latency):
     """Honest for 60 s, then dragged at 0.2 m/s (issue 31: the shadow tests do not see it; 30 s later it was 6.8 m
     off with 1.3-1.5 m reported, 44-79 % within 2 sigma): a camera check every camera_interval_s floors the
     reported accuracy at the camera fix's distance from the readings, so the reports cover the error while the
-    drag lasts. (None: an honest receiver, whose wandering bias the floor covers too.)"""
+    drag lasts. (None: an honest receiver, whose wandering bias the floor covers too. 2 Hz readings and a 0.25 s
+    matcher, as the daemon beside ArduPilot SITL has them: no reading after a capture when its answer comes.)"""
     d, samples = drive()
     fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, spoof_after=None if bearing is None else 60.0,
-                     bearing=bearing or 0.0, drag_velocity=bool(drag_velocity), drift=0.2)
-    _, rec, _, queries = run(d, samples, fixes, PLUS, matcher=OracleMatcher(d, seed=2), latency=0.5)
+                     bearing=bearing or 0.0, drag_velocity=bool(drag_velocity), drift=0.2, rate=rate)
+    _, rec, _, queries = run(d, samples, fixes, PLUS, matcher=OracleMatcher(d, seed=2), latency=latency)
     w = window(rec, 10.0, 100.0)
     ratio = np.hypot(w[:, 1], w[:, 2]) / w[:, 3]
     assert np.mean(ratio <= 2.0) >= 0.95 and ratio.max() <= 3.0, (np.mean(ratio <= 2.0), ratio.max())

@@ -241,7 +241,8 @@ class GnssFusion:
             return
         theta = float(tick.x[2]) if tick is not None else float(self.host.ukf.x[2])
         R = fix_covariance(theta, max(outcome.sigma_fwd, 1e-3), max(outcome.sigma_lat, 1e-3))
-        g.camera_check(outcome.capture_t, np.asarray(outcome.xy, dtype=float), R, anchor)
+        snap = next((s for n, s in self._snaps if n == tick.node), None) if tick is not None else None
+        g.camera_check(outcome.capture_t, np.asarray(outcome.xy, dtype=float), R, anchor, snap)
 
     # ------------------------------------------------------------------ rejection
     def _rollback(self, base: Tick) -> None:

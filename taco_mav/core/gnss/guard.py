@@ -331,14 +331,18 @@ class GnssGuard:
         return v
 
     # -------------------------------------------------------------- camera cross-check
-    def camera_check(self, t_capture: float, z: np.ndarray, R_cam: np.ndarray, anchor: Anchor) -> float | None:
+    def camera_check(self, t_capture: float, z: np.ndarray, R_cam: np.ndarray, anchor: Anchor,
+                     snap_c: DrSnap | None = None) -> float | None:
         """Compare a camera fix (capture time s, ENU m (2,), 2x2 m^2) with the GNSS readings within
         camera_match_s of its capture, carried to the capture time by dead reckoning with `anchor`'s speed and
-        biases. Returns the NIS (None when there is nothing to compare); counts consecutive disagreements
-        (NIS > camera_gate): camera_disagree_n of them reject the receiver at its next reading."""
+        biases; snap_c: the dead reckoner at the capture (the frame's; None: between the readings' own, which
+        needs a reading after the capture: a 2 Hz receiver and a 0.25 s matcher in the daemon had none, and no
+        check ever ran). Returns the NIS (None when there is nothing to compare); counts consecutive
+        disagreements (NIS > camera_gate): camera_disagree_n of them reject the receiver at its next reading."""
         p = self.p
         near = [r for r in self._recent if abs(r[0] - t_capture) <= p.camera_match_s]
-        snap_c = interpolate([r[3] for r in self._recent], t_capture)
+        if snap_c is None:
+            snap_c = interpolate([r[3] for r in self._recent], t_capture)
         if not near or snap_c is None:
             return None
         moved = [r[1] + dr_displacement(anchor, r[3], snap_c) for r in near]
