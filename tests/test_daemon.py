@@ -132,8 +132,10 @@ def test_fixes_went_through_worker(drive) -> None:
     events = [json.loads(line) for line in (log_dir / "events.jsonl").read_text().splitlines()]
     kinds = [e["event"] for e in events]
     assert kinds[0] == "start" and kinds[-1] == "stop" and "origin" in kinds
-    fix = next(e for e in events if e["event"] == "fix" and e.get("accepted"))
-    assert len(fix["results"]) == 5 and fix["gate"] == "accepted"
+    fix = next(e for e in events if e["event"] == "fix" and e.get("accepted") and e["reason"] != "gnss_check")
+    assert len(fix["results"]) == 5 and fix["gate"] == "accepted"  # a search: five crops (a GNSS check has one)
+    checks = [e for e in events if e["event"] == "fix" and e["reason"] == "gnss_check"]
+    assert all(len(e["results"]) == 1 for e in checks)
     assert fix["arrival_t"] - fix["capture_t"] >= 0.25  # the 0.3 s artificial latency: a delayed fix
 
 
