@@ -9,6 +9,7 @@ Frames and units (see DESIGN.md):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -97,6 +98,14 @@ class Estimate:
     def sigma_h(self) -> float:
         """1-sigma horizontal accuracy, metres: sqrt of the largest eigenvalue of cov_xy."""
         return horizontal_sigma(self.cov_xy)
+
+    def floored(self, sigma_m: float) -> Estimate:
+        """This estimate with no horizontal 1-sigma below sigma_m (m): the difference to the smaller eigenvalue of
+        cov_xy added to both variances; itself when none is below (or cov_xy is not finite)."""
+        lo = float(np.linalg.eigvalsh(self.cov_xy).min()) if np.all(np.isfinite(self.cov_xy)) else math.inf
+        if lo >= sigma_m**2:
+            return self
+        return dataclasses.replace(self, cov_xy=self.cov_xy + (sigma_m**2 - lo) * np.eye(2))
 
 
 def horizontal_sigma(cov: np.ndarray) -> float:

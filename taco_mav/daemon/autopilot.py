@@ -10,7 +10,7 @@ from typing import Any, Callable
 
 from taco_mav.config import Profile
 from taco_mav.daemon.health import LinkWatch
-from taco_mav.daemon.imu_source import ATTITUDE_MESSAGES, IMU_REQUESTED
+from taco_mav.daemon.imu_source import ATTITUDE_REQUESTED, IMU_REQUESTED
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.scheduler import Periodic
 from taco_mav.mavlink.connection import Link
@@ -122,7 +122,7 @@ class AutopilotLink:
         imu = self.imu_kind or IMU_REQUESTED
         # asked for one at a time, in this order: the estimator's inputs first (until granted they come at the
         # port's default 1-4 Hz, and the daemon is DEGRADED)
-        rates = {imu: p.link.imu_rate_hz, ATTITUDE_MESSAGES[0]: p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0,
+        rates = {imu: p.link.imu_rate_hz, ATTITUDE_REQUESTED: p.link.attitude_rate_hz, "SYSTEM_TIME": 1.0,
                  "GPS_RAW_INT": 2.0, "VFR_HUD": 5.0,
                  "GLOBAL_POSITION_INT": 2.0}  # the autopilot's own position: where a restarted daemon starts
         if self.wants_pose():
@@ -130,7 +130,7 @@ class AutopilotLink:
         rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         assert self.link is not None
         self.requester = StreamRequester(self.link.send, self.link.mav, rates)
-        self.streamwatch = StreamWatch((imu, ATTITUDE_MESSAGES[0]))
+        self.streamwatch = StreamWatch((imu, ATTITUDE_REQUESTED))
 
     def _on_system_time(self, msg: Any, received: float) -> None:
         self.clockmap.on_system_time(msg.time_boot_ms)

@@ -30,10 +30,11 @@ from taco_mav.mavlink.decoders import IMU_MESSAGES, MAX_GYRO, AttitudeReading, D
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ATTITUDE_MESSAGES", "ATTITUDE_STALE_S", "IMU_REQUESTED", "InputSources", "SOURCE_TIMEOUT_S", "STEADY_DT_S",
-           "STEADY_SAMPLES", "SourceSelector", "Switch", "attitude_quaternion"]
+__all__ = ["ATTITUDE_MESSAGES", "ATTITUDE_REQUESTED", "ATTITUDE_STALE_S", "IMU_REQUESTED", "InputSources",
+           "SOURCE_TIMEOUT_S", "STEADY_DT_S", "STEADY_SAMPLES", "SourceSelector", "Switch", "attitude_quaternion"]
 
-ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")  # the first is the one the daemon asks for
+ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")
+ATTITUDE_REQUESTED = "ATTITUDE"  # the attitude stream the daemon asks for
 IMU_REQUESTED = "RAW_IMU"  # the IMU stream the daemon asks for when link.imu_message is "auto"
 SOURCE_TIMEOUT_S = 1.0  # s (companion clock) without a valid sample from the chosen source before another is taken
 ATTITUDE_STALE_S = 1.0  # autopilot s: an IMU sample paired with an attitude this much older is counted stale
@@ -58,7 +59,8 @@ class SourceSelector:
     pinned: a name of `kinds` to use whatever happens (None: choose). preferred: the one asked for, returned to
     when it streams steadily (None: none). `offer(kind, valid, now, stamp)` is called for every message of
     `kinds` (valid: the decoders accepted it; now: companion s; stamp: the sample's autopilot s) and says whether
-    to use this sample; a change of source is then in `take_switch()`. `switches` counts changes after the first choice.
+    to use this sample; a change of source is then in `take_switch()`. `switches` counts changes after the first
+    choice.
     """
 
     def __init__(self, kinds: tuple[str, ...], pinned: str | None = None, timeout_s: float = SOURCE_TIMEOUT_S,
@@ -154,15 +156,14 @@ def attitude_quaternion(msg: Any, decoders: Decoders) -> AttitudeReading | None:
 
 class InputSources:
     """The daemon's two selectors: `imu` over IMU_MESSAGES (pinned by `link.imu_message` unless "auto"; else
-    RAW_IMU preferred, the stream the daemon asks for) and `attitude` over ATTITUDE_MESSAGES (ATTITUDE preferred).
-    The readings come out decoded (SI units, autopilot seconds) or None
-    when the message is refused or not from the chosen source; `take_switches()` gives the changes since the
-    last call as ("imu" | "attitude", Switch)."""
+    IMU_REQUESTED preferred) and `attitude` over ATTITUDE_MESSAGES (ATTITUDE_REQUESTED preferred). The readings
+    come out decoded (SI units, autopilot seconds) or None when the message is refused or not from the chosen
+    source; `take_switches()` gives the changes since the last call as ("imu" | "attitude", Switch)."""
 
     def __init__(self, imu_message: str = "auto", timeout_s: float = SOURCE_TIMEOUT_S) -> None:
         self.imu = SourceSelector(IMU_MESSAGES, None if imu_message == "auto" else imu_message, timeout_s,
                                   preferred=IMU_REQUESTED)
-        self.attitude = SourceSelector(ATTITUDE_MESSAGES, None, timeout_s, preferred=ATTITUDE_MESSAGES[0])
+        self.attitude = SourceSelector(ATTITUDE_MESSAGES, None, timeout_s, preferred=ATTITUDE_REQUESTED)
 
     def imu_reading(self, msg: Any, decoders: Decoders, now: float) -> ImuReading | None:
         """An IMU message arrived at `now` (companion s): its reading when it is to be integrated."""

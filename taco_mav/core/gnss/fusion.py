@@ -27,7 +27,6 @@ the true course onto the grid); sigmas 1-sigma m and m/s; times autopilot second
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import deque
 
@@ -195,9 +194,13 @@ class GnssFusion:
             self._snaps.popleft()
         self._flush()
 
+    def _snap(self, tick: Tick) -> DrSnap | None:
+        """The dead reckoner at the end of frame `tick` (None without a snapshot there)."""
+        return next((s for n, s in self._snaps if n == tick.node), None)
+
     def _anchor(self, tick: Tick) -> Anchor | None:
         """The filter's state at `tick` as a shadow anchor (None without a snapshot there)."""
-        snap = next((s for n, s in self._snaps if n == tick.node), None)
+        snap = self._snap(tick)
         if snap is None:
             return None
         speed, bias, beta, sigmas = self.mode.gnss_anchor_terms(tick)
@@ -241,7 +244,7 @@ class GnssFusion:
             return
         theta = float(tick.x[2]) if tick is not None else float(self.host.ukf.x[2])
         R = fix_covariance(theta, max(outcome.sigma_fwd, 1e-3), max(outcome.sigma_lat, 1e-3))
-        snap = next((s for n, s in self._snaps if n == tick.node), None) if tick is not None else None
+        snap = self._snap(tick) if tick is not None else None
         g.camera_check(outcome.capture_t, np.asarray(outcome.xy, dtype=float), R, anchor, snap)
 
     # ------------------------------------------------------------------ rejection
@@ -289,13 +292,11 @@ class GnssFusion:
 
     def report(self, est: Estimate) -> Estimate:
         """The reported estimate while a receiver is in use: its horizontal 1-sigma at least the guard's camera
-        floor (`GnssGuard.camera_floor_m`: the last camera check's distance from the readings, when beyond its
-        noise). Unchanged otherwise."""
-        floor = self.guard.camera_floor_m if self.in_use and self.guard is not None else 0.0
-        lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
-        if lo >= floor * floor:
+        floor (`GnssGuard.camera_floor_m`: the last camera check's distance from the readings). Unchanged
+        otherwise."""
+        if self.guard is None or not self.in_use:
             return est
-        return dataclasses.replace(est, cov_xy=est.cov_xy + (floor * floor - lo) * np.eye(2))
+        return est.floored(self.guard.camera_floor_m)
 
     def take_events(self) -> list[tuple[float, str, str]]:
         """(t, kind, detail) of "gnss_rejected" / "gnss_accepted" since the last call (detail: the figures)."""

@@ -327,10 +327,7 @@ class PlusMode:
         if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self.guard.flagged
                 and not self.host.gnss.in_use):
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
-        lo = float(np.linalg.eigvalsh(est.cov_xy).min()) if np.all(np.isfinite(est.cov_xy)) else math.inf
-        floor = self.answers.report_floor_m
-        if lo < floor**2:
-            est = dataclasses.replace(est, cov_xy=est.cov_xy + (floor**2 - lo) * np.eye(2))
+        est = est.floored(self.answers.report_floor_m)
         est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
                          compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
                          map_offset=[float(v) for v in x[6:8]],
