@@ -18,7 +18,7 @@ from fault_helpers import (ORIGIN_LAT, ORIGIN_LON, noise_image, run_pipeline, sm
                            write_folder, write_geotiff)
 from mav_autopilot import MiniAutopilot, free_udp_port
 
-from taco_mav.camera.sources import FolderSource, FrameGuard, FrameRejected, VideoSource
+from taco_mav.camera.sources import FolderSource, FrameGuard, FrameRejected, FreezeWatch, VideoSource
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.errors import ConfigError
 from taco_mav.geo import UtmProjector
@@ -54,6 +54,30 @@ def test_guard_verdicts() -> None:
     quiet = FrameGuard(160, 120, 0.15, check_frozen=False)  # a renderer (world:) repeats itself legitimately
     assert _reason(quiet, (1.0, img), 1.0) == "ok" and _reason(quiet, (1.1, img), 1.1) == "ok"
 
+
+
+def test_a_freeze_one_consumer_sees_is_refused_by_the_other() -> None:
+    """Issue 31 (SITL): the matcher, one frame every few seconds, never sees a picture twice, so a hung camera's
+    picture, a second old and stamped now, passed its guard and was taken as a fix 3 m behind the rover. The
+    camera-speed loop's guard (grey, every 0.5 s) sees the repeat; through the shared FreezeWatch the matcher's
+    guard refuses frames stamped after the freeze began until that loop sees the picture change."""
+    watch = FreezeWatch()
+    fix = FrameGuard(160, 120, max_gap_s=0.15, freeze=watch)
+    speed = FrameGuard(160, 120, max_gap_s=0.15, grey=True, freeze=watch)
+    alone = FrameGuard(160, 120, max_gap_s=0.15)  # the matcher's guard as it was: no shared watch
+    hung = noise_image(2)
+    assert _reason(fix, (5.0, noise_image(1)), 5.0) == "ok" and _reason(alone, (5.0, noise_image(1)), 5.0) == "ok"
+    assert _reason(speed, (5.5, np.ascontiguousarray(hung[..., 0])), 5.5) == "ok"
+    assert watch.frozen_since() is None
+    assert _reason(speed, (6.0, np.ascontiguousarray(hung[..., 0])), 6.0) == "frozen_frame"
+    assert watch.frozen_since() == 5.5
+    assert _reason(alone, (6.5, hung.copy()), 6.5) == "ok"  # the defect: new to this guard, so it passed
+    with pytest.raises(FrameRejected, match="not changed since 5.500 s"):
+        fix.check((6.5, hung.copy()), 6.5)
+    assert _reason(fix, (5.4, noise_image(3)), 5.4) == "ok"  # a frame from before the freeze is still good
+    assert _reason(speed, (7.0, np.ascontiguousarray(noise_image(4)[..., 0])), 7.0) == "ok"  # it lives again
+    assert watch.frozen_since() is None
+    assert _reason(fix, (7.0, noise_image(4)), 7.0) == "ok"
 
 @pytest.mark.parametrize("step, verdict", [(3, "blank_frame"), (5, "ok")])
 def test_guard_blank_is_the_std_of_every_4th_pixel(step: int, verdict: str) -> None:

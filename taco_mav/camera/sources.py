@@ -326,6 +326,34 @@ def _recorded_frames(index: Path, offset_s: float) -> tuple[list[float], list[Pa
     return [times[i] for i in order], [paths[i] for i in order]
 
 
+class FreezeWatch:
+    """Whether a camera's picture has stopped changing, shared by the frame guards of its consumers (the matcher's
+    and the camera-speed loop's, each in its own thread and at its own rate). A guard that sees one picture at two
+    frame times marks the camera frozen since the first; until that guard sees the picture change, every guard
+    refuses frames stamped after that time. The matcher, one frame every few seconds, never sees a repeat of its
+    own: in SITL (issue 31) a hung camera's picture, 1 s old and stamped now, was taken as a fix 3 m behind the
+    rover. Times are frame times on the source's clock, s."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._since: dict[int, float] = {}  # guard id -> frozen since, s
+
+    def repeated(self, guard: object, since: float) -> None:
+        """`guard` saw the picture of frame time `since` again."""
+        with self._lock:
+            self._since.setdefault(id(guard), since)
+
+    def changed(self, guard: object) -> None:
+        """`guard` saw the picture change: its mark (if any) is lifted."""
+        with self._lock:
+            self._since.pop(id(guard), None)
+
+    def frozen_since(self) -> float | None:
+        """The earliest frame time from which some guard still sees one picture, s; None: not frozen."""
+        with self._lock:
+            return min(self._since.values(), default=None)
+
+
 class FrameGuard:
     """Vets frames for one camera (used from one thread: the matcher worker). width, height: the camera model's
     image size, px; max_gap_s: largest |frame time - capture time| accepted, s; min_std: a frame whose grey
@@ -333,14 +361,15 @@ class FrameGuard:
     (CRC-32 of all pixels) to the previous one but stamped at another time (False for noiseless sources);
     rectifier: undistorts and rescales raw frames to the model (None: frames must be the model's size already);
     horizon: checks each passed frame's horizon against the profile's pitch (warnings: `take_warnings`);
-    grey: the consumer's frames are grey uint8 (H, W), asked for with `frame_near(..., grey=True)` (camera speed)."""
+    grey: the consumer's frames are grey uint8 (H, W), asked for with `frame_near(..., grey=True)` (camera speed);
+    freeze: the camera's `FreezeWatch`, shared with its other consumers' guards (with check_frozen)."""
 
     def __init__(self, width: int, height: int, max_gap_s: float, min_std: float = 2.0,
                  check_frozen: bool = True, rectifier: FrameRectifier | None = None,
-                 horizon: HorizonCheck | None = None, grey: bool = False) -> None:
+                 horizon: HorizonCheck | None = None, grey: bool = False, freeze: FreezeWatch | None = None) -> None:
         self.width, self.height, self.max_gap_s, self.grey = int(width), int(height), float(max_gap_s), grey
         self.min_std, self.check_frozen = float(min_std), check_frozen
-        self.rectifier, self.horizon = rectifier, horizon
+        self.rectifier, self.horizon, self.freeze = rectifier, horizon, freeze
         self._last: tuple[float, int] | None = None  # (frame time s, CRC-32) of the last frame passed
 
     def _shape_ok(self, img: object) -> bool:
@@ -384,7 +413,15 @@ class FrameGuard:
             crc = zlib.crc32(np.ascontiguousarray(img).data)
             last, self._last = self._last, (t_frame, crc)
             if last is not None and last[1] == crc and last[0] != t_frame:
+                if self.freeze is not None:
+                    self.freeze.repeated(self, last[0])
                 raise FrameRejected("frozen_frame", f"identical to the frame at {last[0]:.3f} s")
+            if self.freeze is not None:
+                if last is not None:
+                    self.freeze.changed(self)
+                since = self.freeze.frozen_since()
+                if since is not None and t_frame > since:
+                    raise FrameRejected("frozen_frame", f"the camera's picture has not changed since {since:.3f} s")
         if self.rectifier is not None:
             img = self.rectifier(img)
         if self.horizon is not None:

@@ -74,8 +74,7 @@ class Localiser:
         self.p = params
         self.frame_dt = 1.0 / params.imu.frame_rate_hz
         self.record = record
-        self.pre = Preintegrator(t0, x, y, heading, speed, allow_reverse=params.imu.allow_reverse,
-                                 max_dt_s=params.imu.max_dt_s, heading_offset=heading_offset)
+        self.pre = Preintegrator.from_params(params.imu, t0, x, y, heading, speed, heading_offset)
         self.highpass = HighPass(params.imu.accel_highpass_hz)
         self._interval_residual = MomentAccumulator()
         self.t = t0

@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass
 from math import atan2, cos, sin
 
+from taco_mav.core.params import ImuParams
 from taco_mav.core.types import ImuSample
 
 
@@ -75,10 +76,14 @@ class Preintegrator:
     gyro_heading (taco+, plus.gyro_heading): theta integrates the gyro's yaw rate (body rates levelled by roll and
     pitch) instead of taking each sample's compass heading; `compass` keeps the compass heading, which the filter
     fuses as a slow reference (`Increment.theta_end`). `rebase_heading` sets theta to the filter's at a frame.
+    tilt_lowpass_s: with a positive time constant, s, gravity is taken off the forward acceleration with the
+    attitude's roll and pitch low-passed (first order) rather than each sample's (`ImuParams.tilt_lowpass_s` says
+    why); 0 takes each sample's, as the paper does. `tilt`: the low-passed (roll, pitch), rad.
     """
 
     def __init__(self, t0: float, x: float = 0.0, y: float = 0.0, theta: float = 0.0, speed: float = 0.0,
-                 *, allow_reverse: bool = False, max_dt_s: float = 0.5, heading_offset: float = 0.0) -> None:
+                 *, allow_reverse: bool = False, max_dt_s: float = 0.5, heading_offset: float = 0.0,
+                 tilt_lowpass_s: float = 0.0) -> None:
         self.t = t0
         self.heading_offset = heading_offset
         self.x, self.y = x, y
@@ -89,7 +94,17 @@ class Preintegrator:
         self.accel_fwd = 0.0
         self.gyro_heading = False
         self.compass = theta  # the last sample's compass heading, ENU rad (+ heading_offset)
+        self.tilt_lowpass_s = tilt_lowpass_s
+        self.tilt: tuple[float, float] | None = None
         self._reset_interval(theta)
+
+    @classmethod
+    def from_params(cls, imu: ImuParams, t0: float, x: float, y: float, theta: float, speed: float,
+                    heading_offset: float = 0.0) -> "Preintegrator":
+        """A preintegrator with the profile's IMU settings (reverse, longest step, tilt low-pass); the other
+        arguments as the constructor's."""
+        return cls(t0, x, y, theta, speed, allow_reverse=imu.allow_reverse, max_dt_s=imu.max_dt_s,
+                   heading_offset=heading_offset, tilt_lowpass_s=imu.tilt_lowpass_s)
 
     def _reset_interval(self, theta: float) -> None:
         self._theta0 = theta
@@ -112,6 +127,11 @@ class Preintegrator:
             dt = self.max_dt_s
         fx, fy, fz = sample.accel_frd
         pitch, roll = sample.pitch, sample.roll
+        if self.tilt_lowpass_s > 0.0:
+            r0, p0 = self.tilt if self.tilt is not None else (roll, pitch)
+            k = min(dt / self.tilt_lowpass_s, 1.0)
+            roll, pitch = r0 + k * (roll - r0), p0 + k * (pitch - p0)
+            self.tilt = (roll, pitch)
         sp, cp = sin(pitch), cos(pitch)
         sr, cr = sin(roll), cos(roll)
         a = cp * fx + sp * sr * fy + sp * cr * fz  # level_forward_accel

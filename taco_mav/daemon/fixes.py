@@ -35,7 +35,7 @@ import numpy as np
 from taco_mav.camera.calibration import FrameRectifier
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.camera.horizon import HorizonCheck
-from taco_mav.camera.sources import CameraSource, ClockDomain, FrameGuard, open_camera
+from taco_mav.camera.sources import CameraSource, ClockDomain, FrameGuard, FreezeWatch, open_camera
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import FixQuery
@@ -103,7 +103,7 @@ class FixPipeline:
         if self.camera is not None:
             self.guard = FrameGuard(self.ground_camera.width, self.ground_camera.height, opt.frame_max_gap_s,
                                     check_frozen=not self.camera.noiseless, rectifier=self.rectifier,
-                                    horizon=HorizonCheck(self.ground_camera))
+                                    horizon=HorizonCheck(self.ground_camera), freeze=FreezeWatch())
         map_path = opt.map_path or getattr(self.camera, "mosaic_path", None)  # a simulated camera's world
         if map_path is not None:
             from taco_mav.cvgl.satellite import SatelliteMap

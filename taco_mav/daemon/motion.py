@@ -56,11 +56,11 @@ class MotionPipeline:
         self.motion = GroundMotion(cam, ego_rows=fixes.profile.classical.ego_mask_rows)
         # frames undistorted as for fixes, grey (the BEV is grey: a JPEG's luma alone is decoded); a real (noisy)
         # camera never gives the same picture twice: a repeat is a hung driver, whose frames would read as a stop (a
-        # noiseless renderer repeats itself legitimately)
+        # noiseless renderer repeats itself legitimately); a freeze it sees is the matcher's too (FreezeWatch)
         source = fixes.camera
         self.guard = FrameGuard(cam.width, cam.height, max(fixes.opt.frame_max_gap_s, gap_s),
                                 check_frozen=source is not None and not source.noiseless, rectifier=fixes.rectifier,
-                                grey=True)
+                                grey=True, freeze=fixes.guard.freeze if fixes.guard is not None else None)
         self.counts: Counter[str] = Counter()
         self.headings = HeadingHistory()
         self._jobs: queue.Queue[tuple[float, float] | None] = queue.Queue(maxsize=1)

@@ -113,8 +113,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
     t0 = float(imu.t[0])
     x0, y0, th0 = truth.pose_at(t0)
     loc = make_localiser(params, t0, x0, y0, th0, drive.start.speed, record=True, heading_offset=convergence)
-    dead = Preintegrator(t0, x0, y0, th0, drive.start.speed, allow_reverse=params.imu.allow_reverse,
-                         max_dt_s=params.imu.max_dt_s, heading_offset=convergence)
+    dead = Preintegrator.from_params(params.imu, t0, x0, y0, th0, drive.start.speed, convergence)
     dead_xy = np.zeros((len(imu), 2))
     reported = [_cov3(loc.estimate().cov_xy)]
     pending: list[tuple[float, int, list]] = []
