@@ -91,18 +91,16 @@ def test_camera_frozen_then_black_mid_mission(tmp_path):
     """Issue 31: the camera's frames frozen for 10 s, then black for 10 s, 40 s into AUTO. Frozen and black frames
     are refused (no fix from a place the rover has left, no speed from a picture that does not move); on the IMU
     alone the rover profile's honest accuracy soon says the position is lost, our fix type drops and the
-    autopilot's EKF fails safe (HOLD): a safe stop, reported, where the mission does not complete."""
+    autopilot's EKF fails safe (HOLD): a safe stop, reported, where the mission does not complete. Never a runaway:
+    the matcher refuses the hung picture the camera-speed loop saw repeat (once taken as a fix 3 m back, which cost
+    our speed 1 m/s for the rest of the outage), and the rover profile's tilt low-pass keeps EKF3's pitch, which
+    leans towards our speed, out of it."""
     spec = MissionSpec(setup="solo", fault="camera", fault_after_s=40.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
-    _fault_check(res, spec, speed=False)
+    _fault_check(res, spec)  # the true speed under 1.5 x WP_SPEED among the rest (4.8-5.3 m/s before issue 31's fix)
     fixes, motion = res["daemon_fixes"], res["daemon_camera_motion"]
     assert fixes.get("frozen_frame", 0) >= 1 and fixes.get("blank_frame", 0) >= 1, fixes
     assert motion.get("frozen_frame", 0) >= 1, motion  # the camera-speed loop refuses them too
-    if res["true_speed_max_mps"] > 1.5 * spec.wp_speed:  # everything else above holds, and is asserted
-        pytest.xfail(f"issue 31, open: the rover at {res['true_speed_max_mps']:.2f} m/s (limit "
-                     f"{1.5 * spec.wp_speed:.1f}) on a 3 m/s mission. On the IMU alone our speed runs up to 1.2 m/s "
-                     "slow (covered: speed_accuracy 1.5 m/s) and EKF3, fusing it, lets the rover speed up until its "
-                     "failsafe holds it (1 flight of 4 at stops 36-37)")
 
 
 def test_matcher_worker_stalled_mid_mission(tmp_path):
