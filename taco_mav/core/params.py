@@ -41,7 +41,7 @@ class ImuParams:
     # fuses our output its attitude is not independent of us: on the IMU alone EKF3 tilts its pitch towards our
     # speed error (SITL, issue 31: 0.29 deg std of pitch on level ground; in a camera outage our speed 1.1 m/s
     # slow after 12 s where the accelerometer alone was 0.05 m/s off, and the rover sped to 4.8 m/s on a 3 m/s
-    # mission). The ArduPilot rover profiles set 30 s (that flight's pitch std 0.29 -> 0.035 deg); the accel-bias
+    # mission). The rover profiles set 30 s (that flight's pitch std 0.29 -> 0.035 deg); the accel-bias
     # state takes the slow rest, such as a grade the low-pass has not caught up with.
     tilt_lowpass_s: float = field(default=0.0, metadata=bounded(0.0, 3600.0))
 
