@@ -25,7 +25,7 @@ from sitl_mission import accuracy_failures  # noqa: E402
 # What we reported covers what we had, scored where we sent it (`sent_score`). On PX4 SIH our error at send
 # carries a bias that comes and goes between runs (0.3-0.6 m along the track, ahead of the truth, and 0.3-0.4 m
 # to the right; none on ArduPilot), so 68-100 % of the reports fall within 2 sigma and 94-100 % within 3: the
-# 3-sigma share and the largest ratio are held, the 2-sigma share is reported (issue 31 owns the bias).
+# 3-sigma share and the largest ratio are held, the 2-sigma share is reported (the bias: docs/px4.md, a known limit).
 PX4_COVERAGE = {"within_2": None, "within_3": 0.9, "max_ratio": 5.0}
 
 
