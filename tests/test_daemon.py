@@ -219,9 +219,13 @@ def test_loop_reads_the_link_at_most_every_loop_period(monkeypatch: pytest.Monke
 
 def test_stall_degrades_and_reboot_reanchors() -> None:
     """IMU silent 1.0-1.8 s (fix_type 1 while stalled), then the autopilot clock restarts at 1 s: the daemon
-    re-anchors at its estimate, says so in a STATUSTEXT, and carries on with fix_type 3 near the truth."""
+    re-anchors at its estimate, says so in a STATUSTEXT, and carries on with fix_type 3 near the truth. The
+    emulator's seed 3: with seed 0 the first answer (w 0.63) put the accuracy at 13 m, so when the origin came early
+    enough for a query before the stall (1 run in 3, on old code and new) that answer, not the stall, decided the
+    fix type; seed 3's first answer is a good one (w 0.82, 1.8 m), whichever side of the stall it lands."""
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    prof = profile_from_dict({"matcher": "emulator", "emulator": {"seed": 3}})
+    daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)
     ap = MiniAutopilot(port, stall=(1.0, 1.8), reboot_at=1.8)
