@@ -142,3 +142,19 @@ def test_the_tilt_low_pass_starts_from_the_first_attitude_and_follows_a_grade():
     assert worst < 1e-9
     pre, _ = rest(lambda t: 0.0 if t < 1.0 else grade, 26.0)  # a new grade at 1 s, five time constants before
     assert abs(pre.accel_fwd) < G * grade * math.exp(-5.0) * 1.1
+
+
+def test_the_tilt_low_pass_leaves_the_gyro_heading_levelled_by_each_sample():
+    """gyro_heading (the PX4 profiles) levels the gyro's yaw rate by the attitude of the moment; the tilt low-pass
+    is for gravity only, so a rover rolling and pitching while it turns keeps the same heading with it or without."""
+    pres = [Preintegrator(0.0, theta=0.3, speed=2.0, tilt_lowpass_s=tau) for tau in (0.0, 30.0)]
+    for pre in pres:
+        pre.gyro_heading = True
+    for i in range(1, 501):
+        t = i / 50.0
+        roll, pitch = 0.2 * math.sin(0.7 * t), 0.1 * math.cos(0.4 * t)
+        for pre in pres:
+            pre.add(ImuSample(t, (0.0, 0.0, -G), (0.01, 0.02, 0.3), roll, pitch, 0.0))
+    assert pres[1].tilt is not None and abs(pres[1].tilt[0] - 0.2 * math.sin(0.7 * 10.0)) > 0.05  # it lags
+    assert pres[1].theta == pres[0].theta
+    assert pres[0].theta != pytest.approx(0.3 - 0.3 * 10.0, abs=1e-3)  # levelling mattered: not r alone

@@ -78,7 +78,8 @@ class Preintegrator:
     fuses as a slow reference (`Increment.theta_end`). `rebase_heading` sets theta to the filter's at a frame.
     tilt_lowpass_s: with a positive time constant, s, gravity is taken off the forward acceleration with the
     attitude's roll and pitch low-passed (first order) rather than each sample's (`ImuParams.tilt_lowpass_s` says
-    why); 0 takes each sample's, as the paper does. `tilt`: the low-passed (roll, pitch), rad.
+    why); 0 takes each sample's, as the paper does. `tilt`: the low-passed (roll, pitch), rad. The gyro's yaw rate
+    is levelled by each sample's attitude either way.
     """
 
     def __init__(self, t0: float, x: float = 0.0, y: float = 0.0, theta: float = 0.0, speed: float = 0.0,
@@ -141,6 +142,8 @@ class Preintegrator:
         self.compass = theta
         if self.gyro_heading:  # ENU heading rate = -(NED yaw rate) = -(q sin(roll) + r cos(roll)) / cos(pitch)
             _, gq, gr = sample.gyro_frd
+            if self.tilt is not None:  # levelled by this sample's attitude: the low-pass is for gravity only
+                sr, cr, cp = sin(sample.roll), cos(sample.roll), cos(sample.pitch)
             h = self.theta - (gq * sr + gr * cr) / cp * dt
             theta = atan2(sin(h), cos(h))
         v0 = self.speed
