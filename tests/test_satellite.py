@@ -152,3 +152,48 @@ def test_crops_from_the_block_cache_are_the_in_memory_crops_and_the_cache_stays_
                 assert a.valid_fraction == b.valid_fraction == 1.0
         assert len(windows._blocks) == 20  # the 1200 px map's 25 blocks, of which the crops touch 20
         assert len(small._blocks) == 4
+
+
+_DRIVE_ACROSS = """
+import sys
+from pathlib import Path
+import numpy as np
+from taco_mav.cvgl.satellite import SatelliteMap
+
+def rss_mb():
+    status = Path("/proc/self/status").read_text().splitlines()
+    return int(next(line for line in status if line.startswith("VmRSS")).split()[1]) / 1024
+
+with SatelliteMap(sys.argv[1], in_memory_max_mb=0.0, cache_blocks=4) as sat:
+    E0, N0, E1, N1 = sat.bounds_utm
+    sat.crop(np.array([E0 + 60.0, N1 - 60.0]), 0.0, 256, 0.25)
+    before = rss_mb()
+    for N in np.arange(N0 + 60.0, N1 - 60.0, 50.0):
+        for E in np.arange(E0 + 60.0, E1 - 60.0, 50.0):
+            sat.crop(np.array([E, N]), 0.3, 256, 0.25)
+    print(rss_mb() - before)
+"""
+
+
+def test_a_drive_across_a_large_mosaic_does_not_grow_gdals_cache(tmp_path: Path) -> None:
+    """Crops across all of a 4000 x 4000 px mosaic read all its 48 MB of pixels once. GDAL would keep every file block
+    it decoded (its cache defaults to 5 % of the RAM); capped at GDAL_CACHE_MB the process grows by far less than the
+    mosaic (without the cap, as before, it grew 60 MB here; with it 1-12 MB)."""
+    import subprocess
+    import sys
+
+    from taco_mav.cvgl.satellite import GDAL_CACHE_MB
+
+    n = 4000
+    yy, xx = np.mgrid[0:n, 0:n]
+    img = np.stack([(xx // 7 + yy // 5) % 256, (xx // 3) % 256, (yy // 3) % 256]).astype(np.uint8)
+    path = tmp_path / "large.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=n, height=n, count=3, dtype="uint8", crs="EPSG:32632",
+                       transform=rasterio.Affine(0.25, 0.0, E_LEFT, 0.0, -0.25, N_TOP), tiled=True,
+                       blockxsize=512, blockysize=512, compress="deflate") as dst:
+        dst.write(img)
+    del img, yy, xx
+    out = subprocess.run([sys.executable, "-c", _DRIVE_ACROSS, str(path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    grown = float(out.stdout.split()[-1])
+    assert grown < GDAL_CACHE_MB + 12.0, grown

@@ -26,6 +26,7 @@ Frames and units: camera pixels (u, v) = (column, row), OpenCV convention; image
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -35,7 +36,7 @@ from taco_mav.camera.geometry import GroundCamera
 
 __all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
 
-# `_colour_gradient`'s bands: rows per band, and the rows read beyond each side (blur radius 2 + Sobel radius 1).
+# `_gradient_bands`'s bands: rows per band, and the rows read beyond each side (blur radius 2 + Sobel radius 1).
 _BAND_ROWS = 64
 _HALO = 3
 
@@ -67,31 +68,38 @@ def horizon_row(camera: GroundCamera) -> float:
 
 
 def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions = MaskOptions()) -> np.ndarray:
-    """bool (H, W): pixels showing vertical structure (module docstring), True = not ground."""
-    gx, gy = _colour_gradient(image)
-    H, W = gx.shape
+    """bool (H, W): pixels showing vertical structure (module docstring), True = not ground.
+
+    The gradient is classified band by band (`_gradient_bands`) into the two edge maps the rest needs, uint8
+    (H, W) each: a frame's float32 gradients and the cone's coordinates are never held whole (a 1280x720 frame's
+    are 3.7 MB an array, about 25 MB at once, which set the daemon's peak memory, issue 31)."""
+    H, W = image.shape[:2]
     tilt = math.tan(math.radians(opts.max_tilt_deg))
-    agx = np.abs(gx, out=gx)  # in place: only the magnitudes are used (a frame's float32 arrays are 3.7 MB)
-    vertical = np.abs(gy, out=gy) <= tilt * agx
-    del gy
     # the cone below the vanishing point where straight ground lines are near-vertical too
     vh, cx = horizon_row(camera), float(camera.K[0, 2])
     u = np.arange(W, dtype=np.float32)[None, :]
-    v = np.arange(H, dtype=np.float32)[:, None]
-    cone = (v > vh) & (np.abs(u - cx) <= tilt * (v - vh) + 2.0)
+    strong_edges = np.empty((H, W), np.uint8)  # vertical, outside the cone, at least min_contrast
+    weak_edges = np.empty((H, W), np.uint8)  # the same at a third of it
+    for r0, r1, gx, gy in _gradient_bands(image):
+        agx = np.abs(gx, out=gx)  # in place: only the magnitudes are used
+        vertical = np.abs(gy, out=gy) <= tilt * agx
+        v = np.arange(r0, r1, dtype=np.float32)[:, None]
+        vertical &= ~((v > vh) & (np.abs(u - cx) <= tilt * (v - vh) + 2.0))
+        np.copyto(strong_edges[r0:r1], vertical & (agx >= opts.min_contrast))
+        np.copyto(weak_edges[r0:r1], vertical & (agx >= opts.min_contrast / 3.0))
     L = max(5, int(round(opts.min_len_frac * H)))
     line = np.ones((L, 1), np.uint8)
-    strong = cv2.morphologyEx((vertical & ~cone & (agx >= opts.min_contrast)).astype(np.uint8),
-                              cv2.MORPH_OPEN, line)
+    strong = cv2.morphologyEx(strong_edges, cv2.MORPH_OPEN, line)
     # hysteresis: weaker vertical edges continuing a strong one (an object's edge against ground is often
     # fainter than against the sky) extend it down to the object's foot
-    weak = cv2.morphologyEx((vertical & ~cone & (agx >= opts.min_contrast / 3.0)).astype(np.uint8),
-                            cv2.MORPH_OPEN, line) | strong
+    weak = cv2.morphologyEx(weak_edges, cv2.MORPH_OPEN, line) | strong
+    del strong_edges, weak_edges
     n, labels = cv2.connectedComponents(weak, connectivity=8)
     keep = np.zeros(n, bool)
     keep[np.unique(labels[strong > 0])] = True
     keep[0] = False
     runs = keep[labels]
+    del labels
     has = runs.any(axis=0)
     out = np.zeros((H, W), np.uint8)
     if has.any():
@@ -104,18 +112,16 @@ def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskO
     return out.astype(bool)
 
 
-def _colour_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Image gradient (gx, gy), grey levels per pixel, after a Gaussian blur (sigma 1 px); for colour images
-    that of the channel with the strongest gradient at each pixel (a magenta box on grey asphalt of the same
-    brightness still has an edge). float32 (H, W) each.
+def _gradient_bands(image: np.ndarray) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The image gradient band by band: (r0, r1, gx, gy) for rows [r0, r1), grey levels per pixel, float32
+    (r1 - r0, W) each, after a Gaussian blur (sigma 1 px); for colour images that of the channel with the
+    strongest gradient at each pixel (a magenta box on grey asphalt of the same brightness still has an edge).
 
-    Computed in bands of `_BAND_ROWS` rows, each read with `_HALO` rows either side (the 5x5 blur's 2 and the
-    Sobel's 1), so a band's rows see exactly the pixels the whole image would give them (the same numbers bit
-    for bit, tests/test_masks.py): a 1280x720 colour frame's float32 copy, blur, gradients and their squares
-    whole held about 60 MB at once in the matcher thread, a band a 12th of it."""
+    Bands of `_BAND_ROWS` rows, each read with `_HALO` rows either side (the 5x5 blur's 2 and the Sobel's 1), so
+    a band's rows see exactly the pixels the whole image would give them (the same numbers bit for bit,
+    tests/test_masks.py): a 1280x720 colour frame's float32 copy, blur, gradients and their squares whole held
+    about 60 MB at once in the matcher thread, a band a 12th of it."""
     H = image.shape[0]
-    gx_out = np.empty(image.shape[:2], np.float32)
-    gy_out = np.empty(image.shape[:2], np.float32)
     for r0 in range(0, H, _BAND_ROWS):
         r1 = min(H, r0 + _BAND_ROWS)
         a, b = max(0, r0 - _HALO), min(H, r1 + _HALO)
@@ -123,12 +129,10 @@ def _colour_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)[r0 - a:r1 - a]
         gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)[r0 - a:r1 - a]
         if img.ndim == 2:
-            gx_out[r0:r1], gy_out[r0:r1] = gx, gy
+            yield r0, r1, gx, gy
             continue
         k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
-        gx_out[r0:r1] = np.take_along_axis(gx, k, axis=2)[:, :, 0]
-        gy_out[r0:r1] = np.take_along_axis(gy, k, axis=2)[:, :, 0]
-    return gx_out, gy_out
+        yield r0, r1, np.take_along_axis(gx, k, axis=2)[:, :, 0], np.take_along_axis(gy, k, axis=2)[:, :, 0]
 
 
 def _fill_between(foot: np.ndarray, max_gap: int, tol: float) -> np.ndarray:
