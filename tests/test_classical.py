@@ -177,3 +177,36 @@ def test_orientation_with_masks_survives_the_gap_and_vertical_occluders(world, g
     new = ClassicalMatcher(ClassicalMatcherConfig(), renderer.camera)
     e = _gap_errors(renderer, gap_map, new, occlude=True)
     assert np.median(e) < 1.0 and np.mean(e < 2.0) >= 2 / 3, np.round(e, 1)
+
+
+def test_the_correlation_is_the_circular_cross_correlation_over_the_searched_shifts(world) -> None:
+    """`_corr` on OpenCV's packed spectra (`_spectra`) is sum_c sum_x f_c(x + s) t_c(x) over the searched shifts s,
+    as numpy's float64 FFT computes it, to float32 rounding: a crop correlated with a template, several channels and
+    one (the direction of the shift and the channel sum are what a packed layout could get wrong)."""
+    from taco_mav.cvgl.classical import _spectra
+
+    _, _, matcher = world
+    matcher._setup_fft(171)
+    ny, nx = matcher._fft_shape
+    rng = np.random.default_rng(5)
+    f = np.zeros((3, ny, nx), np.float32)
+    f[:, :171, :171] = rng.standard_normal((3, 171, 171))
+    t = np.zeros((3, ny, nx), np.float32)
+    h, w = matcher._mask.shape
+    t[:, :h, :w] = rng.standard_normal((3, h, w)) * matcher._mask
+    want = np.fft.irfft2((np.fft.rfft2(f.astype(np.float64)) * np.conj(np.fft.rfft2(t.astype(np.float64)))).sum(0),
+                         s=(ny, nx))[np.ix_(matcher._iy, matcher._ix)]
+    got = matcher._corr(_spectra(f), _spectra(t))
+    scale = float(np.abs(want).max())
+    assert got.shape == want.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, atol=1e-5 * scale)
+    one = matcher._corr(_spectra(f[0]), _spectra(t[0]))
+    want1 = np.fft.irfft2(np.fft.rfft2(f[0].astype(np.float64)) * np.conj(np.fft.rfft2(t[0].astype(np.float64))),
+                          s=(ny, nx))[np.ix_(matcher._iy, matcher._ix)]
+    np.testing.assert_allclose(one, want1, atol=1e-5 * float(np.abs(want1).max()))
+    # a shifted crop peaks at its shift: f = t moved by (dy, dx) puts the maximum at s = (dy, dx)
+    dy, dx = 7, -4
+    shifted = np.roll(t, (dy, dx), axis=(1, 2))
+    score = matcher._corr(_spectra(shifted), _spectra(t))
+    iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+    assert (matcher._sy[0] + iy, matcher._sx[0] + ix) == (dy, dx)

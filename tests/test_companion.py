@@ -24,14 +24,16 @@ from taco_mav.mavlink.encoders import Origin
 
 # What a run with a video or a device camera, the classical matcher and a GeoTIFF never uses: the FG2 matcher and
 # torch, plotting, the simulation renderers (world: cameras), the offline evaluation and the simulator, the offline
-# smoother's gtsam and scipy.signal / scipy.spatial, scipy.stats (the GNSS guard's chi2 loads it only once a real
-# receiver is read) and filterpy (the UKF computes its sigma-point weights by filterpy's arithmetic); with the
-# filter's kernels built ahead of time (the install step, core/ukf_aot.py) numba and its LLVM (llvmlite); and
-# pymavlink's default dialect "all" (12 MB), where every connection asks for ardupilotmega (taco_mav/mavlink).
+# smoother's gtsam; scipy beyond the LAPACK the filter's kernels call (scipy.linalg): the matcher's FFT is OpenCV's
+# and the GNSS guard's chi2 quantile taco_mav.core.chi2 (scipy.fft and scipy.special cost 8 MB more); filterpy (the
+# UKF computes its sigma-point weights by filterpy's arithmetic); with the filter's kernels built ahead of time (the
+# install step, core/ukf_aot.py) numba and its LLVM (llvmlite); and pymavlink's default dialect "all" (12 MB), where
+# every connection asks for ardupilotmega (taco_mav/mavlink).
 NEVER_LOADED = ("numba", "llvmlite", "torch", "matplotlib", "moderngl", "pandas", "taco_mav.cvgl.fg2", "taco_mav.cvgl.emulator",
                 "taco_mav.evaluation", "taco_mav.sim", "taco_mav.datasets.synthetic.render",
                 "taco_mav.datasets.synthetic.render3d", "taco_mav.datasets.synthetic.world3d", "gtsam", "filterpy",
-                "scipy.stats", "scipy.signal", "scipy.spatial", "pymavlink.dialects.v20.all")
+                "scipy.fft", "scipy.special", "scipy.stats", "scipy.signal", "scipy.spatial", "scipy.optimize",
+                "scipy.ndimage", "pymavlink.dialects.v20.all")
 
 
 def _imported(stderr: str) -> set[str]:

@@ -19,11 +19,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("taco_mav")
 
-# GDAL's block cache for the daemon's run, bytes: ten 512 x 512 RGB tiles of a tiled GeoTIFF (0.79 MB each; a
-# 512 px crop's window spans at most 3 x 3), so the map's blocks (cvgl/satellite.py) decode each tile about once.
-GDAL_CACHE_BYTES = 8_000_000
-
-
 def check_camera_and_map(args: argparse.Namespace, matcher: str) -> None:
     """--camera and --map: what CVGL fixes need, unless --dead-reckoning says to run without them."""
     if args.dead_reckoning:
@@ -113,12 +108,14 @@ def cmd_run(args: argparse.Namespace) -> int:
                          log_dir=log_dir, origin=origin, estimator=estimator,
                          matcher_latency_s=args.matcher_latency, signing_key=signing, record=record,
                          shadow=args.shadow)
-    import rasterio
+    import cv2
 
-    # GDAL keeps the map's decoded tiles in a block cache of 5 % of the RAM by default, beside the map's own
-    # cache of blocks (cvgl/satellite.py): bounded, a process-wide setting for the run (rasterio's Env sets it)
-    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_BYTES):
-        return run_daemon(profile, opts)  # SIGTERM: a clean stop, 0; Ctrl-C: the same stop, 130
+    # OpenCV on the calling thread only: its calls here are background jobs (a match every few seconds, a camera-speed
+    # measurement twice a second) whose latency does not matter at that scale, and its pool of one thread per core
+    # costs CPU to split small images (companion bench, 2 cores: 0.076-0.078 core with the pool, 0.067-0.071
+    # without, issue 31); a companion shares its cores with the camera and everything else.
+    cv2.setNumThreads(1)
+    return run_daemon(profile, opts)  # SIGTERM: a clean stop, 0; Ctrl-C: the same stop, 130
 
 
 def cmd_sim(args: argparse.Namespace) -> int:

@@ -31,7 +31,6 @@ from typing import Sequence
 
 import cv2
 import numpy as np
-import scipy.fft as sfft
 
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import ClassicalMatcherConfig
@@ -86,6 +85,17 @@ def psr_weight(psr: float, psr_at_half_weight: float = PSR_AT_HALF_WEIGHT,
     z = (psr - psr_at_half_weight) / scale
     w = 1.0 / (1.0 + math.exp(-z)) if z > -700.0 else 0.0
     return float(min(max(w, _EPS), 1.0))
+
+
+def _spectra(planes: np.ndarray) -> np.ndarray:
+    """The DFT of each float32 plane of (ny, nx) or (C, ny, nx), in OpenCV's packed layout for real input (CCS:
+    the same shape and dtype, the spectrum's independent half), which `cv2.mulSpectrums` multiplies and
+    `cv2.idft` inverts. OpenCV's FFT rather than scipy's: the daemon then never imports scipy (about 18 MB of a
+    companion's memory, issue 31) and a trigger costs the same; the correlations agree with scipy's to float32
+    rounding (tests/test_classical.py)."""
+    if planes.ndim == 2:
+        return cv2.dft(planes)
+    return np.stack([cv2.dft(p) for p in planes])
 
 
 def _parabola(ym: float, y0: float, yp: float) -> float:
@@ -173,8 +183,8 @@ class ClassicalMatcher:
         # template top-left shift s: vehicle crop pixel = s + (u0, v0); vehicle within c +- r.
         self._sx = (int(math.ceil(c - r - u0)), int(math.floor(c + r - u0)))
         self._sy = (int(math.ceil(c - r - v0)), int(math.floor(c + r - v0)))
-        ny = sfft.next_fast_len(max(self._sy[1] + h, crop_px - self._sy[0]), real=True)
-        nx = sfft.next_fast_len(max(self._sx[1] + w, crop_px - self._sx[0]), real=True)
+        ny = cv2.getOptimalDFTSize(max(self._sy[1] + h, crop_px - self._sy[0]))
+        nx = cv2.getOptimalDFTSize(max(self._sx[1] + w, crop_px - self._sx[0]))
         self._fft_shape = (ny, nx)
         self._crop_px = crop_px
         self._mask_fc = self._mask_spectrum(self._mask)
@@ -182,13 +192,13 @@ class ClassicalMatcher:
         self._ix = np.arange(self._sx[0], self._sx[1] + 1) % nx
 
     def _mask_spectrum(self, mask: np.ndarray) -> np.ndarray:
-        """Conjugate spectrum of a template-canvas mask at the current FFT size."""
+        """Spectrum (`_spectra`) of a template-canvas mask at the current FFT size."""
         pad = np.zeros(self._fft_shape, np.float32)  # type: ignore[arg-type]
         pad[: mask.shape[0], : mask.shape[1]] = mask
-        return np.conj(sfft.rfft2(pad, workers=1))
+        return _spectra(pad)
 
     def _template_fft(self, bev: np.ndarray, angle: float, view: np.ndarray) -> np.ndarray:
-        """Conjugate spectra (C, ny, nx // 2 + 1) of the rotated template's descriptor channels on the common
+        """Spectra (`_spectra`, (C, ny, nx)) of the rotated template's descriptor channels on the common
         mask less the trigger's hidden pixels, each zero-mean, jointly of unit energy. lcn: `bev` holds the
         channels of the unrotated BEV, which are rotated (a scalar field); orientation: `bev` is the grey BEV,
         rotated and then described (its channels are directions), with `view` (the BEV's usable pixels: in
@@ -209,15 +219,18 @@ class ClassicalMatcher:
         ny, nx = self._fft_shape  # type: ignore[misc]
         pad = np.zeros((t.shape[0], ny, nx), np.float32)
         pad[:, : t.shape[1], : t.shape[2]] = t
-        return np.conj(sfft.rfft2(pad, axes=(1, 2), workers=1))
+        return _spectra(pad)
 
-    def _corr(self, spec: np.ndarray, conj_t: np.ndarray) -> np.ndarray:
-        """Correlation over the searched shifts (rows sy, cols sx) from a crop spectrum and a conjugate one;
-        (C, ...) spectra are correlated channel by channel and summed."""
-        prod = spec * conj_t
-        if prod.ndim == 3:
-            prod = prod.sum(axis=0)
-        full = sfft.irfft2(prod, s=self._fft_shape, workers=1)
+    def _corr(self, spec: np.ndarray, tmpl: np.ndarray) -> np.ndarray:
+        """Correlation over the searched shifts (rows sy, cols sx) of a crop with a template, from their spectra
+        (`_spectra`); (C, ...) spectra are correlated channel by channel and summed."""
+        if spec.ndim == 3:
+            prod = cv2.mulSpectrums(spec[0], tmpl[0], 0, conjB=True)
+            for s, t in zip(spec[1:], tmpl[1:]):
+                prod += cv2.mulSpectrums(s, t, 0, conjB=True)
+        else:
+            prod = cv2.mulSpectrums(spec, tmpl, 0, conjB=True)
+        full = cv2.idft(prod, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
         return full[np.ix_(self._iy, self._ix)]
 
     # ------------------------------------------------------------------ matching
@@ -245,7 +258,7 @@ class ClassicalMatcher:
         pads[:C, :Sw, :Sw] = f
         pads[C, :Sw, :Sw] = (f * f).sum(axis=0)
         pads[C + 1, :Sw, :Sw] = 1.0 if vm is None else vm
-        specs = sfft.rfft2(pads, axes=(1, 2), workers=1)
+        specs = _spectra(pads)
         return specs[:C], specs[C], specs[C + 1]
 
     def _denominator(self, prepared: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:

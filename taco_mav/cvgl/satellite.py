@@ -43,10 +43,10 @@ from taco_mav.errors import MapError, OffMapError
 log = logging.getLogger(__name__)
 
 BLOCK = 256
-# GDAL's block cache during reads here, MB: the file blocks of one block read at any pyramid level up to 2 (a 1024 px
-# source window: 9 blocks of 512 x 512 x 3 bytes) and its neighbours' (measured: the bench map's 2140 x 2100 px read
-# whole grew a process 39 MB uncapped, 20 MB capped at 8).
-GDAL_CACHE_MB = 16
+# GDAL's block cache during reads here, MB: ten 512 x 512 RGB tiles of a tiled GeoTIFF (0.79 MB each; a 512 px
+# crop's window spans at most 3 x 3), so the blocks cached here decode each tile about once. It was the daemon's
+# setting for its whole run (issue 31); every reader of a mosaic takes it now.
+GDAL_CACHE_MB = 8
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.special import chdtri
 
+from taco_mav.core.chi2 import chi2_isf_even
 from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.gnss.shadow import Anchor, DrSnap, dr_displacement, interpolate, shadow, shadow_velocity
 
@@ -45,11 +45,9 @@ _RECENT_S = 10.0  # readings kept for camera fixes answered this late
 
 @lru_cache(maxsize=512)
 def window_threshold(n: int, alpha: float) -> float:
-    """Mean-NIS threshold for n readings of a 2-dof innovation: chi2.ppf(1 - alpha, 2 n) / n, by the function
-    scipy.stats.chi2.ppf calls (`chdtri(df, 1 - q)`, the same numbers) without importing scipy.stats (about 50 MB and
-    a second's import a live daemon would otherwise pay, issue 31)."""
-    q = 1.0 - alpha
-    return float(chdtri(2 * n, 1.0 - q) / n)
+    """Mean-NIS threshold for n readings of a 2-dof innovation: chi2.ppf(1 - alpha, 2 n) / n, without scipy (about
+    18 MB a live daemon would otherwise pay for this one function, issue 31; `taco_mav.core.chi2`)."""
+    return chi2_isf_even(2 * n, alpha) / n
 
 
 def receiver_variances(sigma_h: float, p: GnssParams) -> tuple[float, float]:
