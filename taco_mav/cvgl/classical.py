@@ -90,9 +90,9 @@ def psr_weight(psr: float, psr_at_half_weight: float = PSR_AT_HALF_WEIGHT,
 def _spectra(planes: np.ndarray) -> np.ndarray:
     """The DFT of each float32 plane of (ny, nx) or (C, ny, nx), in OpenCV's packed layout for real input (CCS:
     the same shape and dtype, the spectrum's independent half), which `cv2.mulSpectrums` multiplies and
-    `cv2.idft` inverts. OpenCV's FFT rather than scipy's: the daemon then never imports scipy (about 18 MB of a
-    companion's memory, issue 31) and a trigger costs the same; the correlations agree with scipy's to float32
-    rounding (tests/test_classical.py)."""
+    `cv2.idft` inverts. OpenCV's FFT rather than scipy's: the daemon then never imports scipy.fft (with
+    scipy.special, which it pulls in, 8 MB of a companion's memory, issue 31) and a trigger costs the same; the
+    correlations agree with a float64 FFT's to float32 rounding (tests/test_classical.py)."""
     if planes.ndim == 2:
         return cv2.dft(planes)
     return np.stack([cv2.dft(p) for p in planes])

@@ -45,8 +45,8 @@ _RECENT_S = 10.0  # readings kept for camera fixes answered this late
 
 @lru_cache(maxsize=512)
 def window_threshold(n: int, alpha: float) -> float:
-    """Mean-NIS threshold for n readings of a 2-dof innovation: chi2.ppf(1 - alpha, 2 n) / n, without scipy (about
-    18 MB a live daemon would otherwise pay for this one function, issue 31; `taco_mav.core.chi2`)."""
+    """Mean-NIS threshold for n readings of a 2-dof innovation: chi2.ppf(1 - alpha, 2 n) / n, without
+    scipy.special (a live daemon's memory, issue 31; `taco_mav.core.chi2`)."""
     return chi2_isf_even(2 * n, alpha) / n
 
 
