@@ -17,6 +17,7 @@ from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, W_CALIBRATION, ClassicalMatcher, psr_weight
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.render import GroundRenderer
+from taco_mav.errors import MatcherError
 
 WEST, NORTH, RES, SIZE = 500_000.0, 5_430_000.0, 0.2, 1500
 
@@ -94,6 +95,17 @@ def test_empty_crop_list_gives_empty_answer(world) -> None:
     renderer, _, matcher = world
     frame = GroundFrame(renderer.render((WEST + 150.0, NORTH - 150.0, 0.0)), 0.0, renderer.camera)
     assert matcher.match(frame, []) == []
+
+
+def test_crops_of_two_sizes_in_one_trigger_are_refused_by_name(world) -> None:
+    """One FFT size serves a trigger (its templates are cached at it): crops that resample to two sizes are an
+    error naming both, not a shape error from inside OpenCV."""
+    renderer, smap, matcher = world
+    true_en = np.array([WEST + 150.0, NORTH - 150.0])
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], 0.0)), 0.0, renderer.camera)
+    crops = [smap.crop(true_en, 0.0, 512, 0.2), smap.crop(true_en, 0.0, 384, 0.2)]
+    with pytest.raises(MatcherError, match=r"share one size .* got \[128, 171\] px"):
+        matcher.match(frame, crops)
 
 
 def test_psr_weight_is_a_logistic_around_the_profile_midpoint() -> None:

@@ -234,14 +234,18 @@ class ClassicalMatcher:
         return full[np.ix_(self._iy, self._ix)]
 
     # ------------------------------------------------------------------ matching
+    def _crop_px_of(self, crop: Crop) -> int:
+        """Side of a crop at the matcher's resolution, pixels; MatcherError for a crop that is not square RGB."""
+        img = crop.image
+        if img.ndim != 3 or img.shape[0] != img.shape[1]:
+            raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
+        return max(8, int(round(img.shape[0] * crop.m_per_px / self.m_per_px)))
+
     def _prepare_crop(self, crop: Crop) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Crop -> (spectra (C, ...) of its descriptor channels, spectrum of the channels' summed squares,
         spectrum of its valid pixels) at the matcher's resolution."""
         img = crop.image
-        if img.ndim != 3 or img.shape[0] != img.shape[1]:
-            raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
-        S = img.shape[0]
-        Sw = max(8, int(round(S * crop.m_per_px / self.m_per_px)))
+        S, Sw = img.shape[0], self._crop_px_of(crop)
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         valid = (img.max(axis=2) > 0) if crop.valid_fraction < 1.0 else None
         if Sw != S:
@@ -292,7 +296,12 @@ class ClassicalMatcher:
         if hidden is not None:
             occ, _ = self._bev.project(hidden.astype(np.float32))
             view = self._base * (occ < 0.25).astype(np.float32)
-        prepared = [self._prepare_crop(c) for c in crops]
+        # one FFT size for the trigger (a crop of another size would re-plan it under the cached templates); each
+        # crop's spectra are computed when it is scored, not all at once (7 MB less at a trigger's peak, issue 31)
+        sizes = {self._crop_px_of(c) for c in crops}
+        if len(sizes) > 1:
+            raise MatcherError(f"classical matcher: a trigger's crops must share one size at {self.m_per_px} m/px, "
+                               f"got {sorted(sizes)} px")
         self.last_mask_fraction = float((self._mask * view).sum()) / self._mask_n
         if self.last_mask_fraction < self.masks.min_view_fraction:
             # the masks leave too little ground to match: no answer (w at its floor), not a guess
@@ -312,7 +321,8 @@ class ClassicalMatcher:
         h = 0.5 * self.cfg.rotation_step_rad
         results: list[MatchResult] = []
         psrs: list[float] = []
-        for prep, crop in zip(prepared, crops):
+        for crop in crops:
+            prep = self._prepare_crop(crop)
             spec, denom = prep[0], self._denominator(prep)
             maps: dict[float, np.ndarray] = {}
 
