@@ -108,13 +108,6 @@ def cmd_run(args: argparse.Namespace) -> int:
                          log_dir=log_dir, origin=origin, estimator=estimator,
                          matcher_latency_s=args.matcher_latency, signing_key=signing, record=record,
                          shadow=args.shadow)
-    import cv2
-
-    # OpenCV on the calling thread only: its calls here are background jobs (a match every few seconds, a camera-speed
-    # measurement twice a second) whose latency does not matter at that scale, and its pool of one thread per core
-    # costs CPU to split small images (companion bench, 2 cores: 0.076-0.078 core with the pool, 0.067-0.071
-    # without, issue 31); a companion shares its cores with the camera and everything else.
-    cv2.setNumThreads(1)
     return run_daemon(profile, opts)  # SIGTERM: a clean stop, 0; Ctrl-C: the same stop, 130
 
 
