@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mav_autopilot import MiniAutopilot, free_udp_port
+from mav_autopilot import MiniAutopilot, free_udp_port, link_test_profile
 from pymavlink import mavutil
 
 from taco_mav.config import PROFILE_DIR, Profile, load_profile, profile_from_dict, profile_to_dict
@@ -24,8 +24,7 @@ DRIVE_S = 5.0
 
 
 def _profile() -> Profile:
-    return profile_from_dict({"matcher": "emulator",
-                              "output": {"messages": ["gps_input", "hil_gps", "odometry"]}})
+    return link_test_profile({"output": {"messages": ["gps_input", "hil_gps", "odometry"]}})
 
 
 @pytest.fixture(scope="module")
@@ -198,7 +197,7 @@ def test_loop_reads_the_link_at_most_every_loop_period(monkeypatch: pytest.Monke
     monkeypatch.setattr(autopilot, "LOOP_PERIOD_S", period_s)
     monkeypatch.setattr(Link, "recv", lambda self, timeout: reads.append(time.monotonic()) or recv(self, timeout))
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
+    daemon = Daemon(link_test_profile(), DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)
     ap = MiniAutopilot(port)
@@ -220,11 +219,10 @@ def test_loop_reads_the_link_at_most_every_loop_period(monkeypatch: pytest.Monke
 def test_stall_degrades_and_reboot_reanchors() -> None:
     """IMU silent 1.0-1.8 s (fix_type 1 while stalled), then the autopilot clock restarts at 1 s: the daemon
     re-anchors at its estimate, says so in a STATUSTEXT, and carries on with fix_type 3 near the truth. The
-    emulator's seed 3: with seed 0 the first answer (w 0.63) put the accuracy at 13 m, so when the origin came early
-    enough for a query before the stall (1 run in 3, on old code and new) that answer, not the stall, decided the
-    fix type; seed 3's first answer is a good one (w 0.82, 1.8 m), whichever side of the stall it lands."""
+    emulator is the steady one (tests/mav_autopilot.py `STEADY_EMULATOR`): an outlier answered before the stall
+    would decide the fix type instead of the stall."""
     port = free_udp_port()
-    prof = profile_from_dict({"matcher": "emulator", "emulator": {"seed": 3}})
+    prof = link_test_profile()
     daemon = Daemon(prof, DaemonOptions(connect=f"udpin:127.0.0.1:{port}"))
     daemon.start()
     time.sleep(0.2)

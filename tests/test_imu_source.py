@@ -17,10 +17,9 @@ import numpy as np
 import pytest
 from fuzz_frames import STEP_S, AutopilotStream, corrupt_imu
 from fuzz_harness import FuzzOptions, run_fuzz
-from mav_autopilot import free_udp_port
+from mav_autopilot import free_udp_port, link_test_profile
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from taco_mav.config import profile_from_dict
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.daemon.imu_source import InputSources, SourceSelector, attitude_quaternion
 from taco_mav.mavlink.decoders import Decoders
@@ -206,8 +205,7 @@ def test_live_corrupt_first_then_fallbacks(tmp_path: Path) -> None:
     runs beside it, and ATTITUDE turns NaN while ATTITUDE_QUATERNION is sent: both fall back after 1 s, counted,
     logged as events and STATUSTEXT, and the output keeps its rate and fix."""
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}), DaemonOptions(connect=f"udpin:127.0.0.1:{port}",
-                                                                              log_dir=tmp_path))
+    daemon = Daemon(link_test_profile(), DaemonOptions(connect=f"udpin:127.0.0.1:{port}", log_dir=tmp_path))
     daemon.start()
     time.sleep(0.2)
     ap = _Sender(port)

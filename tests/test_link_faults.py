@@ -12,9 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mav_autopilot import MiniAutopilot, Received, free_udp_port
+from mav_autopilot import MiniAutopilot, Received, free_udp_port, link_test_profile
 
-from taco_mav.config import profile_from_dict
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.daemon.health import LinkWatch, stall_sigma
 from taco_mav.geo import UtmProjector
@@ -34,7 +33,7 @@ def _error_m(ap: MiniAutopilot, r: Received) -> float:
 def _run(transport: str, log_dir: Path, drive_s: float = 18.0, **fault) -> tuple[Daemon, MiniAutopilot]:
     """The daemon and the fake autopilot over `transport` for drive_s seconds with the given faults."""
     port = free_udp_port()
-    profile = profile_from_dict({"matcher": "emulator"})
+    profile = link_test_profile()
     if transport == "tcp":  # the autopilot is the server: it must listen before the daemon connects
         ap = MiniAutopilot(port, transport="tcp", gps_s=1.5, **fault)
         ap.start()

@@ -18,10 +18,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mav_autopilot import MiniAutopilot
+from mav_autopilot import MiniAutopilot, link_test_profile
 from pymavlink import mavutil
 
-from taco_mav.config import profile_from_dict
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.errors import TacoError
 from taco_mav.mavlink.connection import Link
@@ -98,7 +97,7 @@ def _drive(tmp_path: Path, drive_s: float, **fault) -> tuple[Daemon, PtyAutopilo
     catcher = Tracebacks()
     logging.getLogger().addHandler(catcher)
     try:
-        daemon = Daemon(profile_from_dict({"matcher": "emulator"}),
+        daemon = Daemon(link_test_profile(),
                         DaemonOptions(connect=f"{device}:{BAUD}", log_dir=tmp_path / "log"))
         daemon.start()
         ap.start()

@@ -12,10 +12,9 @@ from typing import Callable
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from mav_autopilot import MiniAutopilot, free_udp_port  # noqa: E402
+from mav_autopilot import MiniAutopilot, free_udp_port, link_test_profile  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 
-from taco_mav.config import profile_from_dict  # noqa: E402
 from taco_mav.daemon.daemon import Daemon, DaemonOptions  # noqa: E402
 from taco_mav.errors import ConfigError  # noqa: E402
 from taco_mav.mavlink import signing  # noqa: E402
@@ -122,8 +121,7 @@ def signed_run(tmp_path_factory: pytest.TempPathFactory):
     key_path = tmp_path_factory.mktemp("key") / "signing.key"
     key_path.write_text(KEY.hex())
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}),
-                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", signing_key=key_path))
+    daemon = Daemon(link_test_profile(), DaemonOptions(connect=f"udpin:127.0.0.1:{port}", signing_key=key_path))
     daemon.start()
     time.sleep(0.2)
     ap = MiniAutopilot(port)
