@@ -51,6 +51,7 @@ class Tick:
     stationary: bool = False  # taco+: zero-velocity update at this frame
     dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
     track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
+    scale_track: tuple[float, float] | None = None  # taco+: displacement on the camera's speed to this frame, ENU m
     gnss: list[GnssMeasurement] = field(default_factory=list)  # real GNSS applied at this frame (replayed)
 
 

@@ -43,6 +43,7 @@ from taco_mav.core.plus.search import (
     grid_rings,
     hex_offsets,
 )
+from taco_mav.core.plus.speed_scale import ScaleConsider
 from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.search import cross_offsets, fix_position
 from taco_mav.core.types import (
@@ -75,6 +76,7 @@ class PlusMode:
         self.answers = AnswerHold(host, q, self.lock, self.report_factor, self.guard)
         self.camera = CameraSpeed(host, q, self.zero, self.guard, self.feedback)
         self.gnss = GnssUpdate(host, q, self.zero, self.guard, self.feedback)
+        self.scale = ScaleConsider(q.camera_speed_scale_sigma)  # the camera speed's scale error (a consider term)
         self.odo = 0.0  # distance travelled, metres (new frames only)
         self._queries = 0  # queries planned since the start
         self._track_unit = (0.0, 0.0)  # integral of the compass's unit heading vector over time, s (ENU)
@@ -119,6 +121,7 @@ class PlusMode:
         mid = tick.theta_start + 0.5 * inc.d_theta
         ux, uy = self._track_unit
         self._track_unit = tick.track_unit = (ux + inc.dt * math.cos(mid), uy + inc.dt * math.sin(mid))
+        self.scale.advance(tick, mid)
         self.zero.decide(tick)
 
     def predict(self, tick: Tick, terms: ErrorTerms) -> None:
@@ -268,6 +271,9 @@ class PlusMode:
         sc = self.fix_scale.scale if qp.adaptive_fix_noise else 1.0  # what earlier fixes taught
         s_f, s_l = sc * s_f0, sc * s_l0
         pred, Pz = host.ukf.fix_prediction(tick.x, tick.P)  # position (+ the map's offset), its covariance
+        scale_cov = self.scale.covariance_at(tick) if qp.speed_scale_consider else None
+        if scale_cov is not None:  # the camera speed's scale error since the last pin (speed_scale.py)
+            Pz = Pz + scale_cov
         innov = z - pred
         jump = float(np.linalg.norm(innov))
         nis = float(innov @ np.linalg.solve(Pz + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
@@ -288,6 +294,9 @@ class PlusMode:
         if state is LockState.LOST or held == "confirmed":  # relocalise: the candidate replaces the position
             tick.P = tick.P.copy()  # (the jump enters P)
             tick.P[:2, :2] += jump * jump * np.eye(2)
+        if scale_cov is not None:  # ... enters the filter where the fix can take it out
+            tick.P = tick.P.copy()
+            tick.P[:2, :2] += scale_cov
         answers.held = []
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
@@ -295,6 +304,7 @@ class PlusMode:
         # the answer's rotation measures the true heading at capture (plus.fix_yaw_sigma_rad; 0: gate only)
         heading = (q.heading + float(psi[k]), qp.fix_yaw_sigma_rad) if qp.fix_yaw_sigma_rad > 0.0 else None
         host.fuse(tick, z, s_f, s_l, heading)
+        self.scale.pin(tick)
         self._odo_at_fix = max(self._odo_at_fix, self._odo_at_query)  # the query was planned at its capture
         if learn:
             self.report_factor.update(nis)
@@ -327,6 +337,8 @@ class PlusMode:
         if (self.q.report_calibration and self.lock.state is LockState.LOCKED and not self.guard.flagged
                 and not self.host.gnss.in_use):
             est = dataclasses.replace(est, cov_xy=self.report_factor.factor * est.cov_xy)
+        if self.q.speed_scale_consider:
+            est = dataclasses.replace(est, cov_xy=est.cov_xy + self.scale.covariance())
         est = est.floored(self.answers.report_floor_m)
         est.extra.update(lock=self.lock.state.value, speed_error=float(x[3]), accel_bias=float(x[4]),
                          compass_bias=float(x[5]) if len(x) > 5 else 0.0, fix_scale=self.fix_scale.scale,
@@ -337,10 +349,15 @@ class PlusMode:
     # ------------------------------------------------------------------ other inputs and events
     def add_ground_motion(self, t0: float, t1: float, d_fwd: float, d_left: float, sigma_m: float) -> str:
         """The camera's ground-plane motion as a speed measurement (camera_speed.py)."""
-        return self.camera.add(t0, t1, d_fwd, d_left, sigma_m)
+        used = self.camera.add(t0, t1, d_fwd, d_left, sigma_m)
+        if used == "used":
+            self.scale.camera_used(t1)
+        return used
 
     def after_gnss(self, fix: GnssFix, out: GnssOutcome) -> None:
         self.camera.after_gnss(fix, out)
+        if out.used:
+            self.scale.pin()
 
     def lock_events(self) -> list[tuple[float, str, str]]:
         """(t, kind, detail) of lock_lost / relocalised / relock_failed / recovered."""
