@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mav_autopilot import MiniAutopilot, free_udp_port, link_test_profile
+from mav_autopilot import STEADY_EMULATOR, MiniAutopilot, free_udp_port, link_test_profile
 from pymavlink import mavutil
 
 from taco_mav.config import PROFILE_DIR, Profile, load_profile, profile_from_dict, profile_to_dict
@@ -256,6 +256,7 @@ def test_px4_autopilot_gets_hil_gps_and_serves_its_truth_stream() -> None:
     emulator matcher draws its fixes from it, so accepted fixes prove the stream was asked for and decoded."""
     base = profile_to_dict(load_profile("px4_rover"))
     base["matcher"], base["estimator"] = "emulator", "paper"  # paper mode's trigger asks within seconds at rest
+    base["emulator"] = {**base["emulator"], **STEADY_EMULATOR}
     port = free_udp_port()
     opt = DaemonOptions(connect=f"udpin:127.0.0.1:{port}", origin=(49.0, 8.4, 115.0))
     daemon = Daemon(profile_from_dict(base), opt)

@@ -12,10 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mav_autopilot import MiniAutopilot, free_udp_port
+from mav_autopilot import MiniAutopilot, free_udp_port, link_test_profile
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from taco_mav.config import profile_from_dict
 from taco_mav.core.types import Estimate
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.daemon.gcs import GcsHealth, TacoMode
@@ -76,7 +75,7 @@ def test_live_names_at_1hz_with_the_daemons_values(tmp_path: Path) -> None:
     taco_age below the 2 s trigger interval plus the matcher latency; taco_w 0 until the first answer, then the
     emulator's w in (0, 1]."""
     port = free_udp_port()
-    daemon = Daemon(profile_from_dict({"matcher": "emulator"}),
+    daemon = Daemon(link_test_profile(),
                     DaemonOptions(connect=f"udpin:127.0.0.1:{port}", log_dir=tmp_path, matcher_latency_s=0.3))
     daemon.start()
     time.sleep(0.2)
