@@ -89,8 +89,8 @@ def test_a_scale_error_the_filter_averages_down_is_reported_with_the_term():
 
 def test_fixes_weigh_the_error_the_estimate_carries_and_restart_the_term():
     """Answers from the truth every 10 s (30 m): without the term the filter takes each against its own 0.4 m and
-    keeps most of the 0.9 m it drifted, so the error ratchets up to 2.7 m; with it, the capture's prior carries
-    the drift and each fix takes it out (largest error 1.7 m, all within 2 sigma), and the term restarts at each
+    keeps most of the 0.9 m it drifted, so the error ratchets up to 2.9 m; with it, the capture's prior carries
+    the drift and each fix takes it out (largest error 1.8 m, all within 2 sigma), and the term restarts at each
     fix (the largest 1-sigma is under half the one without fixes)."""
     on, truth = _drive(True, fixes=True)
     off, _ = _drive(False, fixes=True)
