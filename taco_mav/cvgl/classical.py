@@ -242,19 +242,18 @@ class ClassicalMatcher:
             raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
         return max(8, int(round(img.shape[0] * crop.m_per_px / self.m_per_px)))
 
-    def _prepare_crop(self, crop: Crop) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _prepare_crop(self, crop: Crop, Sw: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Crop -> (spectra (C, ...) of its descriptor channels, spectrum of the channels' summed squares,
-        spectrum of its valid pixels) at the matcher's resolution."""
+        spectrum of its valid pixels) at the matcher's resolution, where it is Sw pixels a side (`_crop_px_of`)
+        and the FFT is set up for that size."""
         img = crop.image
-        S, Sw = img.shape[0], self._crop_px_of(crop)
+        S = img.shape[0]
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         valid = (img.max(axis=2) > 0) if crop.valid_fraction < 1.0 else None
         if Sw != S:
             grey = cv2.resize(grey, (Sw, Sw), interpolation=cv2.INTER_AREA)
             if valid is not None:
                 valid = cv2.resize(valid.astype(np.float32), (Sw, Sw), interpolation=cv2.INTER_AREA) > 0.5
-        if self._crop_px != Sw:
-            self._setup_fft(Sw)
         vm = None if valid is None else valid.astype(np.float32)
         f = describe(self.descriptor, grey.astype(np.float32), vm, self._sigma_px)
         C = f.shape[0]
@@ -304,12 +303,15 @@ class ClassicalMatcher:
         if len(sizes) > 1:
             raise MatcherError(f"classical matcher: a trigger's crops must share one size at {self.m_per_px} m/px, "
                                f"got {sorted(sizes)} px")
+        (crop_px,) = sizes
         self.last_mask_fraction = float((self._mask * view).sum()) / self._mask_n
         if self.last_mask_fraction < self.masks.min_view_fraction:
             # the masks leave too little ground to match: no answer (w at its floor), not a guess
             self.last_psr = [0.0] * len(crops)
             elapsed = time.perf_counter() - t_start
             return [MatchResult(np.eye(2), np.zeros(2), _EPS, elapsed / len(crops)) for _ in crops]
+        if self._crop_px != crop_px:
+            self._setup_fft(crop_px)
         if self.descriptor == "lcn":
             bev = describe("lcn", bev, view, self._sigma_px)
         cache: dict[float, np.ndarray] = {}
@@ -324,7 +326,7 @@ class ClassicalMatcher:
         results: list[MatchResult] = []
         psrs: list[float] = []
         for crop in crops:
-            prep = self._prepare_crop(crop)
+            prep = self._prepare_crop(crop, crop_px)
             spec, denom = prep[0], self._denominator(prep)
             maps: dict[float, np.ndarray] = {}
 
