@@ -185,7 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", parents=[common], help="synthetic world + simulator + daemon on loopback, one command")
     p.add_argument("--out", default="taco_demo", help="output folder (default ./taco_demo): the world in OUT/world "
                    "(reused), each run in OUT/<estimator>-<matcher>")
-    p.add_argument("--estimator", choices=ESTIMATORS, default="paper", help="estimator mode (default paper)")
+    p.add_argument("--estimator", choices=ESTIMATORS, help="estimator mode (default taco+ with the profile "
+                   "synthetic_rover: what a rover runs; paper: the paper's method, profile synthetic)")
     p.add_argument("--speed", type=float, default=8.0, help="real-time factor, > 0 (default 8)")
     _force(p, "the run folder")
     p.set_defaults(func=live.cmd_demo)

@@ -1,14 +1,17 @@
 """`taco-mav demo`: the whole live path in one command, on loopback.
 
 A small built-in synthetic world (fixed seed, ~1 km; reused when already in the out folder) is played by the
-simulated ArduPilot rover (`taco_mav.sim.Simulator`) to the real daemon (`taco_mav.daemon.daemon.Daemon`, profile
-`synthetic`, classical matcher on frames rendered at the SIMSTATE pose), both as threads of this process talking
-MAVLink over UDP on 127.0.0.1, in lockstep at 8x real time (the daemon runs on the simulator's clock). GNSS is
-denied after the start-up fix. The world lives in `out/world` (shared by every run); each run writes into
-`out/<estimator>-<matcher>` (e.g. `taco_demo/paper-classical`, `taco_demo/taco+-classical`): `results.json` (the
-simulator's scoring), `trajectory.png` (truth vs the GPS_INPUT positions over the mosaic) and the daemon's
-logs (`daemon/`). A run folder that already holds results is refused unless `force`. Ctrl-C stops the drive;
-what was played is still scored and written (`DemoResult.interrupted`).
+simulated ArduPilot rover (`taco_mav.sim.Simulator`) to the real daemon (`taco_mav.daemon.daemon.Daemon`, classical
+matcher on frames rendered at the SIMSTATE pose), both as threads of this process talking MAVLink over UDP on
+127.0.0.1, in lockstep at 8x real time (the daemon runs on the simulator's clock). GNSS is denied after the
+start-up fix. The daemon's profile follows the estimator (`DEMO_PROFILES`): taco+ runs `synthetic_rover` (the
+ardupilot_rover profile with the world's camera: what a rover runs), paper runs `synthetic` (the paper's numbers
+with the world's camera). The world lives in `out/world` (shared by every run); each run writes into
+`out/<estimator>-<matcher>` (e.g. `taco_demo/taco+-classical`, `taco_demo/paper-classical`): `results.json` (the
+simulator's scoring), `trajectory.png` (truth vs the GPS_INPUT positions over the mosaic, titled with the
+estimator, matcher and profile) and the daemon's logs (`daemon/`). A run folder that already holds results is
+refused unless `force`. Ctrl-C stops the drive; what was played is still scored and written
+(`DemoResult.interrupted`).
 """
 
 from __future__ import annotations
@@ -26,12 +29,16 @@ from taco_mav.errors import TacoError, UsageError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEMO_SEED", "DEMO_LENGTH_KM", "DEMO_SPEED", "DEMO_PROFILE", "DemoResult", "demo_run_dir", "run_demo"]
+__all__ = ["DEMO_ESTIMATOR", "DEMO_SEED", "DEMO_LENGTH_KM", "DEMO_SPEED", "DEMO_PROFILES", "DemoResult", "demo_profile",
+           "demo_run_dir", "demo_title", "run_demo"]
 
 DEMO_SEED = 7
 DEMO_LENGTH_KM = 1.0
 DEMO_SPEED = 8.0
-DEMO_PROFILE = "synthetic"
+DEMO_ESTIMATOR = "taco+"  # what every rover profile runs
+# The daemon's profile per estimator: taco+ as a rover runs it (ardupilot_rover's settings, the world's camera);
+# paper mode as the paper states it (its defaults, the world's camera), which EKF3 refuses (docs/results.md).
+DEMO_PROFILES = {"taco+": "synthetic_rover", "paper": "synthetic"}
 RUN_FILES = ("results.json", "trajectory.png")  # with daemon/: what a run writes, removed first with force
 
 
@@ -46,8 +53,9 @@ class DemoResult:
     world_dir: Path
     wall_s: float
     daemon: dict[str, Any]
-    estimator: str = "paper"
+    estimator: str = DEMO_ESTIMATOR
     matcher: str = "classical"
+    profile: str = DEMO_PROFILES[DEMO_ESTIMATOR]
     interrupted: bool = False
 
 
@@ -71,6 +79,18 @@ def demo_world(out: Path, progress: bool = True) -> Path:
     return build_world(world, seed=DEMO_SEED, length_km=DEMO_LENGTH_KM, progress=progress)
 
 
+def demo_profile(estimator: str) -> str:
+    """The name of the profile the demo's daemon runs with `estimator` ("taco+" or "paper")."""
+    return DEMO_PROFILES[estimator]
+
+
+def demo_title(estimator: str, matcher: str, profile: str, seq: dict[str, Any]) -> str:
+    """The trajectory plot's title: which estimator, matcher and profile ran, and the drive's ATE (m) and length."""
+    ate = seq["ate_m"] if seq.get("ate_m") is not None else float("nan")
+    return (f"taco-mav demo ({estimator}, {matcher} matcher, profile {profile}): ATE {ate:.2f} m over "
+            f"{seq['length_km']:.2f} km, GNSS denied after the start")
+
+
 def demo_run_dir(out: Path, estimator: str, matcher: str) -> Path:
     """The folder a demo run writes into: named by what made it, `out/<estimator>-<matcher>`."""
     return Path(out) / f"{estimator}-{matcher}"
@@ -88,7 +108,7 @@ def _prepare(out: Path, speed: float, estimator: str, force: bool) -> tuple[Path
         Estimator(estimator)
     except ValueError:
         raise UsageError(f"--estimator {estimator}: unknown (known: {', '.join(e.value for e in Estimator)})") from None
-    profile = load_profile(DEMO_PROFILE)
+    profile = load_profile(demo_profile(estimator))
     output_dir(out)
     run_dir = fresh_folder(demo_run_dir(out, estimator, profile.matcher), "results.json", force)
     if force:
@@ -99,7 +119,7 @@ def _prepare(out: Path, speed: float, estimator: str, force: bool) -> tuple[Path
 
 
 def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, duration_s: float | None = None,
-             estimator: str = "paper", force: bool = False) -> DemoResult:
+             estimator: str = DEMO_ESTIMATOR, force: bool = False) -> DemoResult:
     """Run the demo into `out` (see the module docstring); returns what it measured and wrote."""
     out = Path(out)
     run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
@@ -141,14 +161,12 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     doc = sim.results()
     results_path = write_results(doc, run_dir)
     seq = doc["sequences"][sim.drive.name]
-    ate = seq["ate_m"] if seq["ate_m"] is not None else float("nan")
     plot_path = plot_gps_input(sim.drive, sim.monitor.updates, sim.play_start or 0.0, run_dir / "trajectory.png",
                                mosaic=sim.drive.world_dir / json.loads((world / "world.json").read_text())["mosaic"],
-                               title=f"taco-mav demo ({estimator}, {profile.matcher} matcher): ATE {ate:.2f} m over "
-                                     f"{seq['length_km']:.2f} km, GNSS denied after the start")
+                               title=demo_title(estimator, profile.matcher, profile.name, seq))
     return DemoResult(drive=sim.drive.name, results=seq, results_path=results_path, plot_path=plot_path,
                       world_dir=world, wall_s=time.monotonic() - start, daemon=daemon.summary(),
-                      estimator=estimator, matcher=profile.matcher, interrupted=interrupted)
+                      estimator=estimator, matcher=profile.matcher, profile=profile.name, interrupted=interrupted)
 
 
 def _follow(sim: Any, duration_s: float | None, progress: bool) -> None:

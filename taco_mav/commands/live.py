@@ -154,8 +154,11 @@ def fmt(value: object, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
 
-def sim_table(name: str, seq: dict) -> str:
-    """The simulator's figures for one drive as an aligned text table."""
+def sim_table(name: str, seq: dict, refusal: tuple[str, str] = ("EKF3 would refuse it", "the reported 1-sigma")
+              ) -> str:
+    """The simulator's figures for one drive as an aligned text table, ending with ArduPilot's acceptance checks
+    and their figures (`ardupilot_rows`). refusal: the label of the row that says why EKF3 would not use the
+    stream and the words for the accuracy it was sent (`ekf3_refusal`); that row is there only when it would not."""
     rows = [
         ("drive", name),
         ("ATE (first-pose aligned)", f"{fmt(seq.get('ate_m'), '.2f')} m"),
@@ -171,21 +174,75 @@ def sim_table(name: str, seq: dict) -> str:
         ("interval p50 / p99 / max", f"{fmt(seq.get('gps_input_interval_p50_ms'), '.0f')} / "
                                      f"{fmt(seq.get('gps_input_interval_p99_ms'), '.0f')} / "
                                      f"{fmt(seq.get('gps_input_interval_max_ms'), '.0f')} ms"),
-        ("two gaps > 245 ms in a row", str(seq.get("consecutive_gaps_over_245ms"))),
-        ("EKF3 gates (10 s)", f"{'ok' if seq.get('ekf_gates_ok') else 'NOT met'} "
-                              f"(pass {fmt(seq.get('ekf_gate_pass_fraction'), '.0%')}, HDOP p50 "
-                              f"{fmt(seq.get('hdop_p50'), '.2f')})"),
+        *ardupilot_rows(seq),
     ]
+    why = ekf3_refusal(seq, refusal[1])
+    if why is not None:
+        rows.append((refusal[0], why))
     return "\n".join(f"{k:28s} {v}" for k, v in rows)
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    from taco_mav.demo import run_demo
+def ardupilot_rows(seq: dict) -> list[tuple[str, str]]:
+    """ArduPilot's acceptance checks of a GPS_INPUT stream (sim/gps_mav.py), each with the figures it is judged
+    on: AP_GPS's timing (average interval, gaps over 245 ms in a row) and EKF3's GPS checks, which must hold for
+    10 s in a row before EKF3 uses the position (3D fix, HDOP, horizontal accuracy, satellites; the speed
+    accuracy is checked apart)."""
+    from taco_mav.sim.gps_mav import (AVG_MAX_S, GAP_MAX_S, GATE_HACC_MAX_M, GATE_HDOP_MAX, GATE_SACC_MAX_MPS,
+                                      GATE_SATS_MIN)
 
-    res = run_demo(Path(args.out), progress=show_progress(args), speed=args.speed, estimator=args.estimator,
-                   force=args.force)
-    print(f"{'estimator / matcher':28s} {res.estimator} / {res.matcher}")
-    print(sim_table(res.drive, res.results))
+    timing_ok = seq.get("gps_unhealthy_updates") == 0 and not seq.get("gps_timeout", True)
+    ready = seq.get("ekf_ready_after_s")
+    ekf = (f"met, in use {ready:.1f} s after the first GPS_INPUT" if seq.get("ekf_gates_ok") and ready is not None
+           else "NOT met")
+    return [
+        ("AP_GPS timing", f"{'met' if timing_ok else 'NOT met'} (average interval "
+                          f"{fmt(seq.get('gps_input_interval_avg_ms'), '.0f')} ms < {AVG_MAX_S * 1e3:.0f}; two "
+                          f"gaps > {GAP_MAX_S * 1e3:.0f} ms in a row {seq.get('consecutive_gaps_over_245ms')} "
+                          f"times)"),
+        ("EKF3 GPS checks (10 s)", f"{ekf} ({fmt(seq.get('ekf_gate_pass_fraction'), '.0%')} of GPS_INPUT pass)"),
+        ("  HDOP p50 / max", f"{fmt(seq.get('hdop_p50'), '.2f')} / {fmt(seq.get('hdop_max'), '.2f')} "
+                             f"(<= {GATE_HDOP_MAX:g})"),
+        ("  accuracy p50 / max", f"{fmt(seq.get('horiz_accuracy_p50_m'), '.2f')} / "
+                                 f"{fmt(seq.get('horiz_accuracy_max_m'), '.2f')} m (<= {GATE_HACC_MAX_M:g} m)"),
+        ("  satellites (virtual) min", f"{fmt(seq.get('satellites_min'), 'd')} (>= {GATE_SATS_MIN})"),
+        ("  speed accuracy max", f"{fmt(seq.get('speed_accuracy_max_mps'), '.2f')} m/s (<= {GATE_SACC_MAX_MPS:g} "
+                                 f"m/s: {'met' if seq.get('ekf_speed_accuracy_ok') else 'NOT met'})"),
+    ]
+
+
+def ekf3_refusal(seq: dict, sigma: str = "the reported 1-sigma") -> str | None:
+    """Why EKF3 would not use the stream, in one line with the figures (None when its checks were met). sigma
+    names the accuracy that was sent (e.g. "its honest 1-sigma" for paper mode)."""
+    from taco_mav.sim.gps_mav import GATE_HACC_MAX_M, GATE_HDOP_MAX, GATE_SATS_MIN
+
+    if seq.get("ekf_gates_ok"):
+        return None
+    why: list[str] = []
+    hacc, hdop, sats = seq.get("horiz_accuracy_p50_m"), seq.get("hdop_p50"), seq.get("satellites_min")
+    hdop_over = hdop is not None and hdop > GATE_HDOP_MAX
+    if hacc is not None and hacc > GATE_HACC_MAX_M:
+        why.append(f"{sigma} (p50 {hacc:.2f} m) is over the {GATE_HACC_MAX_M:g} m EKF3 accepts"
+                   + (f" (HDOP p50 {hdop:.2f} > {GATE_HDOP_MAX:g})" if hdop_over else ""))
+    elif hdop_over:
+        why.append(f"HDOP p50 {hdop:.2f} > {GATE_HDOP_MAX:g}")
+    if sats is not None and sats < GATE_SATS_MIN:
+        why.append(f"{sats} satellites < {GATE_SATS_MIN}")
+    if seq.get("gps_unhealthy_updates") or seq.get("gps_timeout"):
+        why.append("AP_GPS's timing checks fail")
+    if not why:
+        why.append(f"its checks never held 10 s in a row ({fmt(seq.get('ekf_gate_pass_fraction'), '.0%')} of "
+                   "GPS_INPUT pass)")
+    return "; ".join(why)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from taco_mav.demo import DEMO_ESTIMATOR, run_demo
+
+    res = run_demo(Path(args.out), progress=show_progress(args), speed=args.speed,
+                   estimator=args.estimator or DEMO_ESTIMATOR, force=args.force)
+    mode = "paper mode" if res.estimator == "paper" else res.estimator
+    print(f"{'estimator / matcher':28s} {res.estimator} / {res.matcher} (profile {res.profile})")
+    print(sim_table(res.drive, res.results, refusal=(f"EKF3 would refuse {mode}", "its honest 1-sigma")))
     fixes = res.daemon.get("fixes", {})
     print(f"{'CVGL fixes accepted':28s} {fixes.get('accepted', 0)} of {sum(fixes.values())} answered")
     print(f"{'wall time':28s} {res.wall_s:.0f} s{' (interrupted)' if res.interrupted else ''}")

@@ -11,7 +11,7 @@ from taco_mav.config.fields import Estimator
 from taco_mav.config.link import LinkConfig, OutputConfig
 from taco_mav.config.sensors import CameraConfig, ClassicalMatcherConfig, EmulatorConfig, Fg2Config, MapConfig
 from taco_mav.core.gnss.params import GnssParams
-from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, LocaliserParams,
+from taco_mav.core.params import (AnswerParams, ErrorModelParams, GateParams, ImuParams, LatencyParams, LocaliserParams,
                                   SmootherParams, TriggerParams, UkfParams)
 from taco_mav.core.plus.params import PlusParams
 
@@ -33,6 +33,7 @@ core/plus/params.py, core/gnss/params.py: one definition, one default each); the
     error_model: ErrorModelParams = ErrorModelParams()
     trigger: TriggerParams = TriggerParams()
     gate: GateParams = GateParams()
+    answer: AnswerParams = AnswerParams()
     ukf: UkfParams = UkfParams()
     smoother: SmootherParams = SmootherParams()
     plus: PlusParams = PlusParams()
@@ -76,7 +77,7 @@ def localiser_params(profile: Profile) -> LocaliserParams:
     """The values the core Localiser takes, from a profile (the core never sees the Profile itself): its estimator
     sections as they are, the camera's lever arm, the map's georeferencing error, and taco+ only in that mode."""
     return LocaliserParams(
-        imu=profile.imu, error_model=profile.error_model, trigger=profile.trigger, gate=profile.gate,
+        imu=profile.imu, error_model=profile.error_model, trigger=profile.trigger, gate=profile.gate, answer=profile.answer,
         ukf=profile.ukf, smoother=profile.smoother, latency=profile.latency,
         camera_lever_fwd_left_m=frd_fwd_left(profile.camera.position_frd_m),
         map_georef_sigma_m=profile.map.georef_sigma_m,

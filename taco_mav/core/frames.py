@@ -58,7 +58,8 @@ class Tick:
 @dataclass(frozen=True)
 class FixOutcome:
     """What happened to one answered query. accepted: fused; reason: "accepted", "yaw_gate", "stale",
-    "unknown_query", "no_results" or "nonfinite"; chosen: index of the winning crop; xy: the fix, ENU metres;
+    "unknown_query", "no_results", "nonfinite", "at_chance" (no answer beat the trigger's decoys,
+    core/answer_check.py) or taco+'s "weak", "deferred", "innovation_gate", "unconfirmed"; chosen: index of the winning crop; xy: the fix, ENU metres;
     yaw_residual: rad; sigma_fwd/sigma_lat: metres; nis: normalised innovation squared; delay_s: arrival
     minus capture time; weights: w of every crop."""
 

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from taco_mav.core.answer_check import credible, supported
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
@@ -25,7 +26,7 @@ from taco_mav.core.search import (
     forward_bias,
     trigger_reason,
 )
-from taco_mav.core.types import Estimate, GnssFix, GnssOutcome, ImuSample, MatchResult
+from taco_mav.core.types import Estimate, FixQuery, GnssFix, GnssOutcome, ImuSample, MatchResult
 from taco_mav.core.ukf import PlanarUkf, process_noise, process_sigmas
 
 _NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
@@ -100,7 +101,16 @@ class PaperMode:
             return q
         now = host.t
         weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
+        a = self.p.answer
+        checked = a.decoys > 0 or a.w_min > 0.0 or a.min_agree_share > 0.0  # off under the paper's defaults
+        answered = sum(r is not None for r in results)
+        if checked:  # the answer check (answer_check.py)
+            ok = credible(results, a)
+            results = [r if good else None for r, good in zip(results, ok)]
         k = best_candidate([r if r is not None else _NO_MATCH for r in results])
+        if checked and not self._supported(q, results, ok, k, answered):
+            host.last_fix_t = max(host.last_fix_t, now if self.p.latency.apply_on_arrival else q.capture_t)
+            return host.log(FixOutcome(query_id, False, "at_chance", q.capture_t, now, weights=weights))
         best = results[k]
         assert best is not None
         xy = fix_position(q.crop_centres[k], q.heading, best.t, self.p.camera_lever_fwd_left_m)
@@ -117,6 +127,16 @@ class PaperMode:
             return host.log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, xy, psi, weights=weights))
         nis = host.fuse(tick, xy, s_f, s_l)
         return host.log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
+
+    def _supported(self, q: FixQuery, results: Sequence[MatchResult | None], ok: np.ndarray, k: int,
+                   answered: int) -> bool:
+        """Whether the answer check passes the chosen crop k (results: the credible ones, others None; answered:
+        the crops that had an answer)."""
+        if not ok[k]:
+            return False
+        xy = np.array([fix_position(q.crop_centres[i], q.heading, r.t, self.p.camera_lever_fwd_left_m)
+                       if r is not None else (np.nan, np.nan) for i, r in enumerate(results)])
+        return supported(xy, ok, k, answered, self.p.answer)
 
     def estimate(self, est: Estimate) -> Estimate:
         """The filter's own estimate, as it is."""

@@ -15,7 +15,7 @@ from taco_mav.core.fields import bounded
 from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.plus.params import PlusParams
 
-__all__ = ["ErrorModelParams", "GateParams", "ImuParams", "LatencyParams", "LocaliserParams", "SmootherParams",
+__all__ = ["AnswerParams", "ErrorModelParams", "GateParams", "ImuParams", "LatencyParams", "LocaliserParams", "SmootherParams",
            "TriggerParams", "UkfParams"]
 
 
@@ -77,6 +77,30 @@ class GateParams:
 
     enabled: bool = True  # ablation "no yaw gate" sets False
     yaw_residual_max_rad: float = field(default=0.35, metadata=bounded(0.0, math.pi))  # |psi_res| > 0.35 rejects
+
+
+@dataclass(frozen=True)
+class AnswerParams:
+    """What a matcher's answer must show before any mode may make a fix of it (core/answer_check.py; not in the
+    paper, which fuses every answer with its weight mapped to a sigma). The defaults are the paper's: no decoys,
+    every answer usable, one crop enough."""
+
+    w_min: float = field(default=0.0, metadata=bounded(0.0, 1.0))  # answers weaker than this are not credible
+    # Decoy crops per trigger (0-3: the centre crop turned by 90, 270 and 180 deg, in that order), whose in-gate
+    # answers are the scene's chance level (cvgl/service.py). Real pairs (`taco-mav bench --only real`, issue 37):
+    # with 3, no answer of 96 on real imagery and none on another place's map passes a margin of 4, while every
+    # rendered view of the synthetic pairs does (64 of 64; docs/matchers.md).
+    decoys: int = field(default=0, metadata=bounded(0, 3))
+    # The least log-odds log(w / (1 - w)) by which an answer must beat the decoys' (the classical matcher's w is a
+    # logistic of its PSR with scale 0.5, so 4 = 2 PSR units: about two sidelobe standard deviations).
+    decoy_margin: float = field(default=0.0, metadata=bounded(0.0, 50.0))
+    # The least share of the trigger's answered crops that must be credible and agree with the chosen answer
+    # (within agree_radius_m): a matcher that has found the camera finds it in every crop whose search window
+    # holds it, so an answer only one or two of five crops give is as much the crop's as the place's (real pairs:
+    # the three answers of 96 that beat the decoys were 28-46 m off, given by one or two crops; every synthetic
+    # pair's right answer by five of five). 0: one crop is enough.
+    min_agree_share: float = field(default=0.0, metadata=bounded(0.0, 1.0))
+    agree_radius_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))  # as plus.consensus_radius_m
 
 
 @dataclass(frozen=True)
@@ -147,6 +171,7 @@ class LocaliserParams:
     error_model: ErrorModelParams = ErrorModelParams()
     trigger: TriggerParams = TriggerParams()
     gate: GateParams = GateParams()
+    answer: AnswerParams = AnswerParams()
     ukf: UkfParams = UkfParams()
     smoother: SmootherParams = SmootherParams()
     latency: LatencyParams = LatencyParams()

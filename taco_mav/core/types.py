@@ -41,13 +41,16 @@ class MatchResult:
     R: 2x2 residual rotation between the matcher's heading and the query heading (psi_res = atan2(R10, R00),
     CCW positive). t: the vehicle position relative to the crop centre, metres, in the crop's heading-up frame
     expressed as (forward, left): forward = image up, left = image left. w: match weight in (0, 1].
-    elapsed_s: wall time the matcher spent on this crop (the batch time divided among crops).
+    elapsed_s: wall time the matcher spent on this crop (the batch time divided among crops). null_w: the
+    trigger's chance level, the highest w the matcher gave the trigger's decoy crops (a heading known wrong)
+    while taking that heading as right; None when the trigger had no decoys (core/answer_check.py).
     """
 
     R: np.ndarray
     t: np.ndarray
     w: float
     elapsed_s: float = 0.0
+    null_w: float | None = None
 
 
 

@@ -6,14 +6,17 @@ Query positions are ENU metres relative to the origin; the map wants absolute UT
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
+from taco_mav.config import Profile
 from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame, Matcher
 from taco_mav.cvgl.satellite import SatelliteMap
@@ -53,41 +56,71 @@ def uses_device_crops(matcher: object) -> bool:
             and callable(getattr(matcher, "match_crops", None)))
 
 
+DECOY_TURNS_RAD = (0.5 * math.pi, -0.5 * math.pi, math.pi)  # decoy k turns the centre crop by the k-th of these
+
+
+def chance_level(decoys: Sequence[MatchResult | None], yaw_gate_rad: float | None) -> float | None:
+    """The highest w among decoy answers that take the decoy's (wrong) heading as right: |psi| within the yaw
+    gate (None: every answer). 0.0 when every decoy answer recovered the turn or was off the map; None without
+    decoys."""
+    if not decoys:
+        return None
+    level = 0.0
+    for r in decoys:
+        if r is None or not math.isfinite(r.w):
+            continue
+        psi = math.atan2(float(r.R[1, 0]), float(r.R[0, 0]))
+        if yaw_gate_rad is None or abs(psi) <= yaw_gate_rad:
+            level = max(level, float(r.w))
+    return level
+
+
 class FixService:
     """matcher: any `Matcher`; sat_map: the mosaic, or None for matchers that need no imagery (the emulator on
     image-less drives: crops then carry an empty image but the right centre and heading); origin_utm: (2,)
-    UTM easting/northing of the Localiser's origin; crop_size_px and m_per_px from the profile's `map`."""
+    UTM easting/northing of the Localiser's origin; crop_size_px and m_per_px from the profile's `map`; decoys:
+    crops turned to a heading known wrong asked beside each trigger (profile answer.decoys, 0-3; their in-gate
+    answers set each answer's `null_w`, core/answer_check.py), yaw_gate_rad the gate that tells an in-gate answer
+    (profile gate.yaw_residual_max_rad; None: the gate is off)."""
 
     def __init__(self, matcher: Matcher, sat_map: SatelliteMap | None, origin_utm: np.ndarray, crop_size_px: int = 512,
-                 m_per_px: float = 0.2) -> None:
+                 m_per_px: float = 0.2, *, decoys: int = 0, yaw_gate_rad: float | None = None) -> None:
+        if not 0 <= decoys <= len(DECOY_TURNS_RAD):
+            raise ValueError(f"decoys {decoys}: 0 to {len(DECOY_TURNS_RAD)}")
         self.matcher = matcher
         self.map = sat_map
         self.origin = np.asarray(origin_utm, dtype=float)
         self.size = int(crop_size_px)
         self.m_per_px = float(m_per_px)
+        self.decoy_turns = DECOY_TURNS_RAD[:decoys] if sat_map is not None else ()
+        self.yaw_gate_rad = yaw_gate_rad
         self.stats = ServiceStats()
 
-    def crops(self, query: FixQuery) -> list[Crop | None]:
-        """The query's crops in order; None where a crop is off the map."""
+    def crops(self, query: FixQuery, n_own: int | None = None) -> list[Crop | None]:
+        """The query's crops in order; None where a crop is off the map. Crops past the first n_own (default:
+        all are the query's own) are decoys, turned by DECOY_TURNS_RAD in order."""
         out: list[Crop | None] = []
-        for c in query.crop_centres:
+        n_own = len(query.crop_centres) if n_own is None else n_own
+        for k, c in enumerate(query.crop_centres):
             centre = self.origin + np.asarray(c, dtype=float)
+            heading = float(query.heading) + (self.decoy_turns[k - n_own] if k >= n_own else 0.0)
             if self.map is None:
-                out.append(Crop(np.zeros((0, 0, 3), np.uint8), centre, float(query.heading), self.m_per_px))
+                out.append(Crop(np.zeros((0, 0, 3), np.uint8), centre, heading, self.m_per_px))
                 continue
             try:
-                out.append(self.map.crop(centre, query.heading, self.size, self.m_per_px))
+                out.append(self.map.crop(centre, heading, self.size, self.m_per_px))
             except OffMapError as exc:
                 self.stats.crops_off_map += 1
                 log.debug("query %d: %s", query.query_id, exc)
                 out.append(None)
         return out
 
-    def _cut_on_device(self, query: FixQuery) -> Any:
-        """The query's crops cut by the matcher on its device (DeviceCrops: off-map ones flagged and counted)."""
+    def _cut_on_device(self, query: FixQuery, heading: float) -> Any:
+        """The query's crops cut at `heading` (ENU rad) by the matcher on its device (DeviceCrops: off-map ones
+        flagged and counted)."""
         centres = self.origin + np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
         matcher: Any = self.matcher  # a GeometryMatcher (checked by uses_device_crops)
-        batch = matcher.cut_crops(self.map, centres, query.heading, self.size, self.m_per_px)
+        batch = matcher.cut_crops(self.map, centres, heading, self.size, self.m_per_px)
         for exc in batch.errors:
             if exc is not None:
                 self.stats.crops_off_map += 1
@@ -95,29 +128,66 @@ class FixService:
         return batch
 
     def answer(self, query: FixQuery, frame: GroundFrame) -> list[MatchResult | None]:
-        """MatchResults aligned with query.crop_centres (None for crops off the map). ValueError when the
-        matcher's answer is malformed (wrong count, type or shape)."""
+        """MatchResults aligned with query.crop_centres (None for crops off the map), each with the trigger's
+        chance level (`null_w`) when the service asks decoys. ValueError when the matcher's answer is malformed
+        (wrong count, type or shape)."""
         t0 = time.perf_counter()
-        if self.map is not None and uses_device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
-            batch = self._cut_on_device(query)
-            present = list(batch.present)
-            t1 = time.perf_counter()
-            n = sum(present)
-            matcher: Any = self.matcher
-            results = _check_results(matcher.match_crops(frame, batch), n) if n else []
+        if self.decoy_turns:  # the decoys ride in the same matcher call, after the trigger's own crops
+            centre = np.mean(np.asarray(query.crop_centres, dtype=float).reshape(-1, 2), axis=0)
+            decoy_q = dataclasses.replace(
+                query, crop_centres=np.vstack([np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)]
+                                              + [centre[None, :]] * len(self.decoy_turns)))
+            n_own = len(query.crop_centres)
         else:
-            crops = self.crops(query)
+            decoy_q, n_own = query, len(query.crop_centres)
+        if self.map is not None and uses_device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
+            present, results, t1 = self._on_device(decoy_q, frame, n_own)
+        else:
+            crops = self.crops(decoy_q, n_own)
             present = [c is not None for c in crops]
             t1 = time.perf_counter()
             valid = [c for c in crops if c is not None]
             results = _check_results(self.matcher.match(frame, valid), len(valid)) if valid else []
         t2 = time.perf_counter()
-        if not any(present):
-            self.stats.triggers_off_map += 1
         it = iter(results)
         aligned = [next(it) if p else None for p in present]
+        own, decoys = aligned[:n_own], aligned[n_own:]
+        level = chance_level(decoys, self.yaw_gate_rad)
+        if level is not None:
+            own = [dataclasses.replace(r, null_w=level) if r is not None else None for r in own]
+        if not any(present[:n_own]):
+            self.stats.triggers_off_map += 1
         self.stats.answered += 1
         self.stats.crop_s += t1 - t0
         self.stats.matcher_s += t2 - t1
         self.stats.per_trigger_s.append(t2 - t0)
-        return aligned
+        return own
+
+    def _on_device(self, query: FixQuery, frame: GroundFrame, n_own: int) -> tuple[list[bool], list[MatchResult],
+                                                                                 float]:
+        """(present, results of the present crops, time the crops were cut) on the matcher's device: the trigger's
+        crops at the query heading, then each decoy at its own turn."""
+        centres = np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
+        batches = [self._cut_on_device(dataclasses.replace(query, crop_centres=centres[:n_own]), query.heading)]
+        for k, turn in enumerate(self.decoy_turns):
+            batches.append(self._cut_on_device(dataclasses.replace(query, crop_centres=centres[n_own + k:n_own + k + 1]),
+                                               query.heading + turn))
+        t1 = time.perf_counter()
+        matcher: Any = self.matcher
+        present: list[bool] = []
+        results: list[MatchResult] = []
+        for batch in batches:
+            flags = list(batch.present)
+            n = sum(flags)
+            present += flags
+            results += _check_results(matcher.match_crops(frame, batch), n) if n else []
+        return present, results, t1
+
+
+def profile_service(matcher: Matcher, sat_map: SatelliteMap | None, origin_utm: np.ndarray, profile: Profile
+                    ) -> FixService:
+    """The FixService a profile asks for: its map's crop size and scale, its answer check's decoys and yaw gate.
+    The evaluator, the daemon and the real-imagery bench all build it here."""
+    return FixService(matcher, sat_map, origin_utm, profile.map.crop_size_px, profile.map.crop_m_per_px,
+                      decoys=profile.answer.decoys,
+                      yaw_gate_rad=profile.gate.yaw_residual_max_rad if profile.gate.enabled else None)

@@ -158,10 +158,9 @@ class FixPipeline:
         """The origin is known: a FixService on its UTM grid and the matcher worker thread (with a matcher)."""
         self.service = None
         if self.matcher is not None:
-            from taco_mav.cvgl.service import FixService
+            from taco_mav.cvgl.service import profile_service
 
-            self.service = FixService(self.matcher, self.sat_map, origin.utm, self.profile.map.crop_size_px,
-                                      self.profile.map.crop_m_per_px)
+            self.service = profile_service(self.matcher, self.sat_map, origin.utm, self.profile)
             if self.worker is not None:
                 self.worker.stop(0.0)
             self._new_worker()

@@ -24,7 +24,7 @@ from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.registry import make_matcher
 from taco_mav.cvgl.satellite import SatelliteMap
-from taco_mav.cvgl.service import FixService
+from taco_mav.cvgl.service import profile_service
 from taco_mav.datasets.base import Drive
 from taco_mav.errors import MatcherError
 from taco_mav.evaluation.camera_motion import OfflineMotion
@@ -107,7 +107,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
             raise MatcherError(f"drive {drive.name}: matcher '{profile.matcher}' needs a satellite mosaic and the "
                                "drive has none (a synthetic world's world.json names one)")
         sat_map = SatelliteMap(drive.mosaic)
-    service = FixService(matcher, sat_map, origin, profile.map.crop_size_px, profile.map.crop_m_per_px)
+    service = profile_service(matcher, sat_map, origin, profile)
 
     imu = drive.imu
     t0 = float(imu.t[0])

@@ -24,7 +24,8 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["GpsInputMonitor", "GpsUpdate", "GATE_HDOP_MAX", "GATE_HACC_MAX_M", "GATE_SATS_MIN"]
+__all__ = ["AVG_MAX_S", "GAP_MAX_S", "GpsInputMonitor", "GpsUpdate", "GATE_HDOP_MAX", "GATE_HACC_MAX_M",
+           "GATE_SACC_MAX_MPS", "GATE_SATS_MIN"]
 
 GAP_MAX_S = 0.245
 AVG_MAX_S = 0.215
@@ -160,6 +161,7 @@ class GpsInputMonitor:
                        or (gaps_ms.size and gaps_ms.max() > TIMEOUT_S * 1e3))
         gate_pass = float(np.mean([u.gates_ok for u in updates])) if n else 0.0
         s_acc = [u.s_acc for u in updates if u.s_acc is not None]
+        h_acc = [u.h_acc for u in updates if u.h_acc is not None]
         out: dict[str, Any] = {
             "gps_input_count": n,
             "gps_input_dropped_wrong_id": self.dropped_wrong_id,
@@ -178,8 +180,10 @@ class GpsInputMonitor:
             "ekf_gates_ok": bool(self._ekf_ready_at is not None and not timeout),
             "speed_accuracy_max_mps": float(max(s_acc)) if s_acc else None,
             "ekf_speed_accuracy_ok": bool(not s_acc or max(s_acc) <= GATE_SACC_MAX_MPS),
-            "horiz_accuracy_p50_m": float(np.median([u.h_acc for u in updates if u.h_acc is not None]))
-            if any(u.h_acc is not None for u in updates) else None,
+            "horiz_accuracy_p50_m": float(np.median(h_acc)) if h_acc else None,
+            "horiz_accuracy_max_m": float(max(h_acc)) if h_acc else None,
             "hdop_p50": float(np.median([u.hdop for u in updates])) if n else None,
+            "hdop_max": float(max(u.hdop for u in updates)) if n else None,
+            "satellites_min": min(u.satellites for u in updates) if n else None,
         }
         return out

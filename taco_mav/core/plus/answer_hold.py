@@ -131,7 +131,7 @@ class AnswerHold:
         innov: the rejected answer's z - x (ENU m), for that comparison; None for one too weak to count
         (plus.guard_w_min), which breaks the run."""
         was_lost = self.lock.state is LockState.LOST
-        self.last_answer_weak = reason == "weak"  # nothing the matcher could place: worth asking again soon
+        self.last_answer_weak = reason in ("weak", "at_chance")  # nothing placed: worth asking again soon
         if reason != "no_results":
             self.misses_in_row += 1
         counts = reason == "innovation_gate" and innov is not None

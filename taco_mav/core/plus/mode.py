@@ -19,6 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from taco_mav.core.answer_check import credible, supported
 from taco_mav.core.error_model import ErrorTerms
 from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
 from taco_mav.core.gate import yaw_residual
@@ -253,14 +254,19 @@ class PlusMode:
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
         with np.errstate(invalid="ignore"):
             yaw_ok = (np.abs(psi) <= p.gate.yaw_residual_max_rad) | (not p.gate.enabled)
-        usable = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
+        strong = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
+        usable = strong & credible(results, p.answer)  # no better than the trigger's decoys: chance (answer_check)
         c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m, qp.consensus_weight_power)
         host.last_fix_t = max(host.last_fix_t, now if p.latency.apply_on_arrival else q.capture_t)
         if c is None:
-            reason = "nonfinite" if not finite.any() else ("yaw_gate" if not (finite & yaw_ok).any() else "weak")
+            reason = ("nonfinite" if not finite.any() else "yaw_gate" if not (finite & yaw_ok).any()
+                      else "at_chance" if strong.any() else "weak")
             answers.failed(reason, 0.0, self.odo)
             return host.log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
         k, z = c.index, c.xy
+        if not supported(xy, usable, k, int(finite.sum()), p.answer):  # one or two crops of five: the crops'
+            answers.failed("at_chance", 0.0, self.odo)
+            return host.log(FixOutcome(query_id, False, "at_chance", q.capture_t, now, k, z, psi[k], weights=weights))
         tick = host.capture_tick(q)
         if tick is None:
             return host.log(FixOutcome(query_id, False, "stale", q.capture_t, now, k, z, psi[k], weights=weights))

@@ -1,0 +1,65 @@
+"""Whether a matcher's answer says more than chance: the check every mode runs before its own gates.
+
+A matcher's weight w is its confidence that the answer is right, but on a scene it cannot read its best wrong
+answer can carry as high a w as a right one: on real Street View beside satellite imagery the classical matcher's
+w was as high for answers 20-40 m off as the highest it gave (issue 37), FG2's silent outliers carry ordinary
+weights too. So each trigger also asks the matcher for decoys (`taco_mav.cvgl.service.FixService`): the trigger's
+centre crop turned by a quarter, half and three quarters of a turn, a heading known wrong. What the matcher scores
+there with a yaw residual within the gate (an answer that takes the wrong heading as right) is this scene's chance
+level, and it travels with each answer as `MatchResult.null_w`. A matcher that recovers the turn (|psi| beyond the
+gate) has recognised the place: that is no evidence of chance and is not counted.
+
+An answer is credible when it is usable (finite, w >= w_min) and, where the trigger had decoys, its log-odds
+log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`. An answer is then supported when at least
+`min_agree_share` of the trigger's answered crops are credible and place the camera within `agree_radius_m` of it.
+Agreement alone is no evidence (a chance peak lies inside every crop's search window and all five find it: on the
+real pairs the five positions were within 0.02 m of each other as often for wrong answers as for right ones), but
+credible answers that only one or two crops of five give are.
+
+Weights in [0, 1]; pure maths, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from taco_mav.core.params import AnswerParams
+from taco_mav.core.types import MatchResult
+
+__all__ = ["credible", "log_odds", "supported"]
+
+_W_CLIP = 1e-12  # log-odds of w in [1e-12, 1 - 1e-12]: +-27.6
+
+
+def log_odds(w: float) -> float:
+    """log(w / (1 - w)) with w clipped into (0, 1)."""
+    w = min(max(float(w), _W_CLIP), 1.0 - _W_CLIP)
+    return math.log(w / (1.0 - w))
+
+
+def credible(results: Sequence[MatchResult | None], p: AnswerParams) -> np.ndarray:
+    """Per answer (K,) bool: finite, w >= p.w_min and, when the answer carries a chance level (null_w), its
+    log-odds at least p.decoy_margin above it. None (a crop off the map) is never credible."""
+    out = np.zeros(len(results), dtype=bool)
+    for k, r in enumerate(results):
+        if r is None or not math.isfinite(r.w) or r.w <= 0.0 or r.w < p.w_min:
+            continue
+        if r.null_w is not None and math.isfinite(r.null_w) and p.decoy_margin > 0.0:
+            if log_odds(r.w) - log_odds(r.null_w) < p.decoy_margin:
+                continue
+        out[k] = True
+    return out
+
+
+def supported(xy: np.ndarray, ok: np.ndarray, index: int, answered: int, p: AnswerParams) -> bool:
+    """Whether the chosen answer `index` is supported: the credible answers (ok, (K,) bool) whose positions xy
+    ((K, 2), m) lie within p.agree_radius_m of it number at least p.min_agree_share of the `answered` crops."""
+    if p.min_agree_share <= 0.0:
+        return True
+    pts = np.asarray(xy, float).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        near = np.linalg.norm(pts - pts[index], axis=1) <= p.agree_radius_m
+    return int(np.sum(near & ok)) >= math.ceil(p.min_agree_share * answered - 1e-9)
