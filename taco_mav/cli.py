@@ -54,6 +54,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fg2-compile", action="store_true", help="fg2 section: torch.compile DINOv2 (fg2.compile)")
     p.add_argument("--fg2-device-crops", action="store_true", help="fg2 section: crops warped on the matcher's "
                    "device (fg2.device_crops)")
+    p.add_argument("--real-pairs", metavar="DIR", help="real section: a folder of real ground/aerial pair sets "
+                   "(pairs.json each; default ../shared/data/real_pairs beside the checkout, or TACO_REAL_PAIRS)")
+    p.add_argument("--real-profile", default="ardupilot_rover", help="real section: the profile whose matcher and "
+                   "answer check are scored (default ardupilot_rover)")
     p.set_defaults(func=offline.cmd_bench)
 
     p = sub.add_parser("world", parents=[common], help="generate a synthetic world + drive in KITTI raw layout")

@@ -72,6 +72,9 @@ def test_gps_input_rate_rules() -> None:
     assert s["gps_input_rate_hz"] == pytest.approx(5.0)
     assert s["consecutive_gaps_over_245ms"] == 0
     assert s["ekf_gates_ok"] and s["ekf_ready_after_s"] == pytest.approx(10.2)
+    # the figures each EKF3 check is judged on (the demo's summary prints them)
+    assert s["satellites_min"] == 10 and s["hdop_p50"] == s["hdop_max"] == pytest.approx(0.8)
+    assert s["horiz_accuracy_p50_m"] == s["horiz_accuracy_max_m"] == pytest.approx(1.0)
     t = 59 * 0.2
     for gap in (0.25, 0.25, 0.2):
         t += gap

@@ -223,10 +223,11 @@ def _score_places(places: list[_Place], asker: _Asker, rng: np.random.Generator,
     return tries
 
 
-def real_places(root: Path, rng: np.random.Generator) -> Iterator[tuple[RealSet, _Place]]:
-    """Every place of every set under root, with its views."""
+def real_places(root: Path, rng: np.random.Generator, per_set: int | None = None
+                ) -> Iterator[tuple[RealSet, _Place]]:
+    """Every place (the first per_set of each set; None: all) of every set under root, with its views."""
     for rset in find_sets(root):
-        for pair in rset.pairs:
+        for pair in rset.pairs[:per_set]:
             image = read_rgb(pair.ground)
             aerial = read_rgb(pair.aerial)
             yield rset, _Place(f"{rset.name}/{pair.id}", aerial, rset.m_per_px, pair.truth_px,
@@ -292,12 +293,13 @@ def figures(tries: list[Try], prefix: str) -> dict[str, Any]:
     }
 
 
-def evaluate_real(root: Path, profile: Profile, seed: int = 0) -> tuple[list[Try], dict[str, Any]]:
-    """Tries and keys (real_*) for every set under root."""
+def evaluate_real(root: Path, profile: Profile, seed: int = 0, places_per_set: int | None = None
+                  ) -> tuple[list[Try], dict[str, Any]]:
+    """Tries and keys (real_*) for every set under root (its first places_per_set places each; None: all)."""
     rng = np.random.default_rng(seed)
     asker = _Asker(profile)
     by_set: dict[str, list[_Place]] = {}
-    for rset, place in real_places(root, rng):
+    for rset, place in real_places(root, rng, places_per_set):
         by_set.setdefault(rset.name, []).append(place)
     tries: list[Try] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -310,21 +312,28 @@ def evaluate_real(root: Path, profile: Profile, seed: int = 0) -> tuple[list[Try
     return tries, keys
 
 
-def evaluate_synthetic(profile: Profile, seed: int = 11) -> tuple[list[Try], dict[str, Any]]:
+def evaluate_synthetic(profile: Profile, seed: int = 11, places: int = SYNTHETIC_PLACES
+                       ) -> tuple[list[Try], dict[str, Any]]:
     """Tries and keys (synthetic_pairs_*) on synthetic places made as the real ones are."""
     rng = np.random.default_rng(seed)
     with tempfile.TemporaryDirectory() as tmp:
-        tries = _score_places(synthetic_places(seed), _Asker(profile), rng, Path(tmp))
+        tries = _score_places(synthetic_places(seed, places), _Asker(profile), rng, Path(tmp))
     return tries, figures(tries, "synthetic_pairs")
 
 
 def run(progress: bool = False, real_pairs: str | Path | None = None, profile: str = DEFAULT_PROFILE
         ) -> dict[str, Any]:
-    """Bench entry point (see `taco_mav.bench`); DataError when the real pairs are not there."""
+    """Bench entry point (see `taco_mav.bench`). Without `real_pairs` and with no set at the default place (a
+    clone without ../shared), the real_* keys are absent and a warning says so; a folder given that holds no set
+    is a DataError."""
     cv2.setNumThreads(1)
-    root = Path(real_pairs) if real_pairs else default_root()
     prof = load_profile(profile)
-    _, keys = evaluate_real(root, prof)
+    keys: dict[str, Any] = {"real_profile": prof.name}
+    root = Path(real_pairs) if real_pairs else default_root()
+    if real_pairs or root.is_dir():
+        keys.update(evaluate_real(root, prof)[1])
+    else:
+        log.warning("bench real: no real pairs at %s (give --real-pairs DIR or TACO_REAL_PAIRS): the real_* keys "
+                    "are absent", root)
     keys.update(evaluate_synthetic(prof)[1])
-    keys["real_profile"] = prof.name
     return keys

@@ -48,7 +48,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     fg2 = {"checkout": args.fg2_checkout, "checkpoint": args.fg2_checkpoint, "device": args.device,
            "triggers": args.fg2_triggers, "warmup": args.fg2_warmup, "fast": not args.fg2_published,
            "compile": args.fg2_compile, "device_crops": args.fg2_device_crops}
-    results = run_bench(out, only=only, progress=show_progress(args), options={"fg2": fg2})
+    real = {"real_pairs": args.real_pairs, "profile": args.real_profile}
+    results = run_bench(out, only=only, progress=show_progress(args), options={"fg2": fg2, "real": real})
     for key in sorted(results):
         print(f"{key:45s} {results[key]}")
     print(f"wrote {out}")

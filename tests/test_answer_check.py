@@ -1,0 +1,57 @@
+"""The answer check (core/answer_check.py): an answer is credible when it beats its trigger's decoys by the margin
+in log-odds, and supported when enough of the trigger's crops give it; the paper's defaults check nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from taco_mav.core.answer_check import credible, log_odds, supported
+from taco_mav.core.params import AnswerParams
+from taco_mav.core.types import MatchResult
+
+ON = AnswerParams(decoys=3, decoy_margin=4.0, min_agree_share=0.5)
+
+
+def answer(w: float, null_w: float | None = None) -> MatchResult:
+    return MatchResult(np.eye(2), np.zeros(2), w, null_w=null_w)
+
+
+def test_log_odds_is_the_logit_and_clips_at_the_ends() -> None:
+    assert log_odds(0.5) == 0.0
+    assert log_odds(0.9) == pytest.approx(math.log(9.0))
+    assert log_odds(1.0) == pytest.approx(27.63, abs=0.01) and log_odds(0.0) == pytest.approx(-27.63, abs=0.01)
+
+
+def test_an_answer_must_beat_the_chance_level_by_the_margin() -> None:
+    # w 0.94 over a chance level of 0.08 (the real pairs' most confident wrong answer): 2.75 - (-2.44) = 5.2 > 4
+    # passes the margin alone; w 0.6 over 0.3: 0.41 - (-0.85) = 1.25 < 4 does not
+    res = [answer(0.94, 0.08), answer(0.6, 0.3), answer(0.999, 0.3), None, answer(float("nan"), 0.0)]
+    assert credible(res, ON).tolist() == [True, False, True, False, False]
+    # a chance level of 0 (every decoy recovered its turn, as a matcher that searches all rotations does): credible
+    assert credible([answer(0.3, 0.0)], ON).tolist() == [True]
+
+
+def test_the_paper_defaults_take_every_finite_answer() -> None:
+    paper = AnswerParams()
+    res = [answer(0.01, 0.9), answer(0.5), None, answer(float("nan"))]
+    assert credible(res, paper).tolist() == [True, True, False, False]
+    assert supported(np.array([[0.0, 0.0], [50.0, 0.0]]), np.array([True, True]), 0, 5, paper)
+
+
+def test_w_min_alone() -> None:
+    p = AnswerParams(w_min=0.5)
+    assert credible([answer(0.49), answer(0.5)], p).tolist() == [False, True]
+
+
+def test_support_counts_credible_answers_near_the_chosen_one() -> None:
+    xy = np.array([[0.0, 0.0], [1.0, 1.0], [2.5, 0.0], [20.0, 0.0], [np.nan, np.nan]])
+    ok = np.array([True, True, True, True, False])
+    assert supported(xy, ok, 0, 5, ON)  # 3 of 5 within 3 m: a majority
+    assert not supported(xy, ok, 3, 5, ON)  # 1 of 5
+    ok2 = np.array([True, True, False, True, False])
+    assert not supported(xy, ok2, 0, 5, ON)  # the third is near but not credible: 2 of 5
+    assert supported(xy, ok2, 0, 4, ON)  # 2 of 4 answered
+    assert supported(xy[:1], ok[:1], 0, 1, ON)  # a single-crop trigger: itself
