@@ -20,7 +20,7 @@ from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.daemon.gcs import GcsHealth, TacoMode
 from taco_mav.mavlink import encoders
 
-NAMES = {"taco_mode", "taco_gnss", "taco_hacc", "taco_age", "taco_w"}
+NAMES = {"taco_mode", "taco_gnss", "taco_hacc", "taco_age", "taco_w", "taco_cam", "taco_chnc"}
 
 
 def _est(since_fix_s: float = 0.5, **extra) -> Estimate:
@@ -34,7 +34,8 @@ def test_modes_values_and_changes() -> None:
     assert rep.change is None and dict(rep.values) == {"taco_mode": 0.0, "taco_gnss": 0.0}
     rep = g.update(1.0, _est(0.7), 1.5, True, "ok", fixes, 1, 0, 0.8)
     assert rep.change == (6, "mode TRACKING (was STARTING)")
-    assert dict(rep.values) == {"taco_mode": 1.0, "taco_gnss": 1.0, "taco_hacc": 1.5, "taco_age": 0.7, "taco_w": 0.8}
+    assert dict(rep.values) == {"taco_mode": 1.0, "taco_gnss": 1.0, "taco_hacc": 1.5, "taco_age": 0.7, "taco_w": 0.8,
+                                "taco_cam": 0.0, "taco_chnc": 0.0}
     # frames stop: faults counted, no frame reaches the matcher; camera lost once 3 s passed since the last one
     for t in (2.0, 3.0):
         fixes["no_frame"] += 1
@@ -57,6 +58,29 @@ def test_modes_values_and_changes() -> None:
     v = dict(rep.values)
     assert (v["taco_hacc"], v["taco_age"], v["taco_w"]) == (1000.0, -1.0, 0.0)  # never NaN on the wire
     assert all(len(name) <= 10 for name in v)
+
+
+def test_a_camera_at_chance_is_told_once_and_ends_at_the_next_fix() -> None:
+    g = GcsHealth()
+    fixes: Counter[str] = Counter(accepted=3)
+    assert g.update(0.0, _est(), 1.0, True, "none", fixes, 3, 0, 0.9).change == (6, "mode TRACKING (was STARTING)")
+    changes = []
+    for t in range(1, 13):  # one answer a second: no fix, the answers no better than the trigger's decoys
+        fixes["at_chance" if t % 4 else "weak"] += 1
+        rep = g.update(float(t), _est(), 1.0 + t, True, "none", fixes, 3 + t, 0, 0.9)
+        changes += [(t, rep.change)] if rep.change else []
+        v = dict(rep.values)
+    # the last of the three fixes leaves the window of ten at the tenth answer: called at chance then, once
+    assert changes == [(10, (4, "mode AT_CHANCE: 0 of 10 fixed, 10 chance"))]
+    assert v["taco_mode"] == TacoMode.AT_CHANCE and v["taco_cam"] == 0.0 and v["taco_chnc"] == 1.0
+    # answers that disagree with the track are not chance: a window of them is not "at chance"
+    fixes["accepted"] += 1
+    rep = g.update(13.0, _est(), 1.0, True, "none", fixes, 16, 0, 0.9)
+    assert rep.change == (6, "mode TRACKING (was AT_CHANCE)") and dict(rep.values)["taco_cam"] == 0.1
+    for t in range(14, 24):
+        fixes["innovation_gate"] += 1
+        assert g.update(float(t), _est(), 1.0, True, "none", fixes, t + 3, 0, 0.9).change is None
+    assert g.matcher.verdict == "usable" and g.matcher.inconsistent == 1.0
 
 
 def test_named_value_float_encoding() -> None:

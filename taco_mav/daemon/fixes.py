@@ -339,7 +339,7 @@ class FixPipeline:
                 "fix", query_id=q.query_id, reason=q.reason, capture_t=q.capture_t, frame_t=res.frame_t,
                 arrival_t=out.arrival_t, epsilon=q.epsilon, heading=q.heading, centre=q.centre,
                 crop_centres=q.crop_centres,
-                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w} for r in res.results],
+                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w, "null_w": r.null_w} for r in res.results],
                 accepted=out.accepted, gate=out.reason, chosen=out.chosen, xy=out.xy, yaw_residual=out.yaw_residual,
                 sigma_fwd=out.sigma_fwd, sigma_lat=out.sigma_lat, nis=out.nis, matcher_s=res.elapsed_s,
                 estimate_xy=est.xy, sigma_h=est.sigma_h)

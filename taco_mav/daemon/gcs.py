@@ -6,7 +6,12 @@ Values (names are at most 10 characters, the field's size):
 - taco_mode: `TacoMode` code (below); taco_gnss: `GNSS_CODES` code of the real receiver;
 - taco_hacc: horizontal 1-sigma accuracy sent in the last position output, m (sent once an estimate exists);
 - taco_age: seconds (autopilot) since the last accepted camera fix (or since the estimator started);
-- taco_w: the best crop's match weight w in (0, 1] of the last answered camera query, 0 before any.
+- taco_w: the best crop's match weight w in (0, 1] of the last answered camera query, 0 before any;
+- taco_cam: the share of the last answered camera queries that made a fix, taco_chnc: the share that said nothing
+  (`MatcherHealth`, daemon/matcher_health.py), both once the estimator runs.
+
+Camera at chance: `MatcherHealth` says so (no fix among the last answered queries, most of them no better than
+chance); over at the next accepted fix.
 
 Camera lost: queries have failed for want of a usable frame (no, stale, corrupt, blank, frozen or mis-sized
 frames) and no frame has reached the matcher for `camera_lost_s`; over as soon as one does. Off map: the last
@@ -21,6 +26,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from taco_mav.core.types import Estimate
+from taco_mav.daemon.matcher_health import MatcherHealth
 from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
 
 __all__ = ["CAMERA_FAULTS", "GCS_HEALTH_HZ", "GNSS_CODES", "GcsHealth", "GcsReport", "TacoMode"]
@@ -32,8 +38,8 @@ GNSS_CODES = {"none": 0, "ok": 1, "lost": 2, "rejected": 3}  # never had a 3D fi
 
 
 class TacoMode(enum.IntEnum):
-    """taco_mode codes. Once the estimator runs, the first that applies of CAMERA_LOST, OFF_MAP, RELOCALISING,
-    CONFIRMING, DEGRADED, else TRACKING."""
+    """taco_mode codes. Once the estimator runs, the first that applies of CAMERA_LOST, OFF_MAP, AT_CHANCE,
+    RELOCALISING, CONFIRMING, DEGRADED, else TRACKING."""
 
     STARTING = 0  # no origin or no estimator yet: nothing is sent to the autopilot
     TRACKING = 1  # output healthy (3D fix); taco+: lock held
@@ -42,6 +48,7 @@ class TacoMode(enum.IntEnum):
     CAMERA_LOST = 4  # no usable camera frames (see the module docstring)
     OFF_MAP = 5  # the search area is outside the satellite map
     DEGRADED = 6  # output degraded to no fix: accuracy above output.degrade_accuracy_m, or the IMU stalled
+    AT_CHANCE = 7  # the camera's answers are no better than chance here (daemon/matcher_health.py): none fused
 
 
 _SEVERITY = {TacoMode.STARTING: SEV_INFO, TacoMode.TRACKING: SEV_INFO, TacoMode.CONFIRMING: SEV_NOTICE}
@@ -69,6 +76,7 @@ class GcsHealth:
         self._off_map_triggers = 0
         self._faults = 0
         self._frame_at: float | None = None
+        self.matcher = MatcherHealth()
 
     def _camera(self, now: float, fixes: Mapping[str, int], answered: int, off_map_triggers: int) -> None:
         faults = sum(n for k, n in fixes.items() if k in CAMERA_FAULTS)
@@ -92,6 +100,7 @@ class GcsHealth:
         fixes: fix outcome counters by reason; answered / off_map_triggers: the FixService's answered queries
         and those with every crop off the map; weight: the last answered query's best w."""
         self._camera(now, fixes, answered, off_map_triggers)
+        self.matcher.count(fixes)
         lock = est.extra.get("lock") if est is not None else None
         if est is None:
             mode = TacoMode.STARTING
@@ -99,6 +108,8 @@ class GcsHealth:
             mode = TacoMode.CAMERA_LOST
         elif self.off_map:
             mode = TacoMode.OFF_MAP
+        elif self.matcher.verdict == "at_chance":
+            mode = TacoMode.AT_CHANCE
         elif lock == "lost":
             mode = TacoMode.RELOCALISING
         elif lock == "confirming":
@@ -109,7 +120,8 @@ class GcsHealth:
             mode = TacoMode.TRACKING
         change = None
         if mode is not self.mode:
-            change = (_SEVERITY.get(mode, SEV_WARNING), f"mode {mode.name} (was {self.mode.name})")
+            text = self.matcher.describe() if mode is TacoMode.AT_CHANCE else f"mode {mode.name} (was {self.mode.name})"
+            change = (_SEVERITY.get(mode, SEV_WARNING), text)
             self.mode = mode
             self.changes += 1
         values = [("taco_mode", float(mode)), ("taco_gnss", float(GNSS_CODES.get(gnss, 0)))]
@@ -117,5 +129,6 @@ class GcsHealth:
             age = est.since_fix_s if math.isfinite(est.since_fix_s) else -1.0
             hacc = hacc_m if hacc_m is not None and math.isfinite(hacc_m) else 1000.0
             values += [("taco_hacc", min(hacc, 1000.0)), ("taco_age", max(age, -1.0)),
-                       ("taco_w", weight if math.isfinite(weight) else 0.0)]
+                       ("taco_w", weight if math.isfinite(weight) else 0.0),
+                       ("taco_cam", self.matcher.accepted_share), ("taco_chnc", self.matcher.chance)]
         return GcsReport(values, change)
