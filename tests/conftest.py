@@ -1,4 +1,6 @@
-"""Shared pytest fixtures. Real KITTI data lives beside the repository in ../shared/data (the CI layout)."""
+"""Shared pytest fixtures. Real KITTI data: the folder $TACO_KITTI_ROOT names (e.g. one filled by
+`python tools/download_kitti.py 04 05 07 09 --root data/kitti_raw`), else ../shared/data/kitti_raw beside the
+repository (the CI layout): `taco_mav.datasets.kitti.default_kitti_root`."""
 
 from __future__ import annotations
 
@@ -8,8 +10,10 @@ from pathlib import Path
 import pytest
 
 import taco_mav.datasets.synthetic  # noqa: F401 - registers the `world:DIR` camera scheme (camera.open_camera)
+from taco_mav.datasets.kitti import default_kitti_root
 
-KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw"
+_root = default_kitti_root()
+KITTI_ROOT = None if _root is None else _root.resolve()  # absolute: a test may change the working directory
 # the development tools (tools/: the SITL harnesses, the appearance-gap maker gap.py) import as top-level modules
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
@@ -17,8 +21,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 @pytest.fixture(scope="session")
 def kitti_root() -> Path:
     """The KITTI raw root (`<root>/<date>/<date>_drive_<nnnn>_sync/oxts`); skips when it is absent."""
-    if not KITTI_ROOT.is_dir():
-        pytest.skip(f"KITTI raw data not found at {KITTI_ROOT} (expected ../shared/data/kitti_raw beside the repo)")
+    if KITTI_ROOT is None:
+        pytest.skip("KITTI raw data not found: set TACO_KITTI_ROOT to a root filled by tools/download_kitti.py "
+                    "(README.md), or have ../shared/data/kitti_raw beside the repo")
     return KITTI_ROOT
 
 

@@ -172,6 +172,8 @@ def test_demo_run_folders_are_named_by_what_made_them(tmp_path: Path) -> None:
     assert demo_run_dir(tmp_path, "taco+", "classical") == tmp_path / "taco+-classical"
     run, profile = _prepare(tmp_path, 8.0, "paper", force=False)
     assert run == tmp_path / "paper-classical" and run.is_dir() and profile.matcher == "classical"
+    assert profile.name == "synthetic"  # paper mode runs the paper's profile; taco+ the rover's
+    assert _prepare(tmp_path, 8.0, "taco+", force=False)[1].name == "synthetic_rover"
     (run / "results.json").write_text("{}")
     (run / "trajectory.png").write_bytes(b"png")
     (run / "daemon").mkdir()
@@ -355,7 +357,7 @@ def test_ctrl_c_in_the_demo_exits_130_and_writes_what_was_played(tmp_path: Path)
     proc = subprocess.Popen([sys.executable, "-m", "taco_mav.cli", "demo", "-q", "--out", str(out), "--speed", "1"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"), preexec_fn=_sigint_default)
-    run = out / "paper-classical"
+    run = out / "taco+-classical"  # the default: taco+, what a rover runs
     try:
         deadline = time.monotonic() + 240
         events = run / "daemon" / "events.jsonl"

@@ -62,8 +62,8 @@ def scratch(root: Path) -> Path:
     (root / "garbage.tlog").write_bytes(np.random.default_rng(1).integers(0, 255, 4000, dtype=np.uint8).tobytes())
     (root / "done").mkdir()
     (root / "done" / "results.json").write_text("{}\n")
-    (root / "demo" / "paper-classical").mkdir(parents=True)
-    (root / "demo" / "paper-classical" / "results.json").write_text("{}\n")
+    (root / "demo" / "taco+-classical").mkdir(parents=True)  # the default demo's run folder
+    (root / "demo" / "taco+-classical" / "results.json").write_text("{}\n")
     (root / "worlddone").mkdir()
     (root / "worlddone" / "world.json").write_text("{}\n")
     (root / "cutworld").mkdir()  # a world whose mosaic download or generation was cut short
@@ -161,7 +161,7 @@ CASES: dict[str, Case] = {
     # demo
     "demo_speed_zero": Case("demo --out {T}/d --speed 0", 2, ("--speed 0",)),
     "demo_out_unwritable": Case("demo --out {T}/afile/d", 2, ("--out {T}/afile/d",)),
-    "demo_run_exists": Case("demo --out {T}/demo", 2, ("{T}/demo/paper-classical", "--force")),
+    "demo_run_exists": Case("demo --out {T}/demo", 2, ("{T}/demo/taco+-classical", "--force")),
     "demo_estimator_unknown": Case("demo --out {T}/d --estimator ekf", 2, ("--estimator", "ekf")),
     # the command itself
     "command_unknown": Case("calibrat --images x", 2, ("calibrat",)),
@@ -214,7 +214,7 @@ def test_nothing_was_written_by_refused_commands(outcomes: dict[str, tuple[Outco
     for name in ("w", "e", "s", "d", "b.json", "c.yaml"):
         assert not (root / name).exists(), name
     assert (root / "done" / "results.json").read_text() == "{}\n"  # an earlier run's results are kept
-    assert sorted(p.name for p in (root / "demo").iterdir()) == ["paper-classical"]
+    assert sorted(p.name for p in (root / "demo").iterdir()) == ["taco+-classical"]
 
 
 def test_debug_shows_the_traceback(tmp_path: Path) -> None:

@@ -141,13 +141,18 @@ def test_live_latency_independence(kitti_root: Path, tmp_path: Path) -> None:
 
 
 def test_demo_short(tmp_path: Path) -> None:
-    """`run_demo` end to end on its built-in world, cut to 20 s of the drive: files written, rate kept."""
+    """`run_demo` end to end on its built-in world, cut to 20 s of the drive: files written, rate kept, and by
+    default what a rover runs (taco+, profile synthetic_rover), whose reports EKF3 takes after its 10 s of checks."""
     from taco_mav.demo import DEMO_SEED, run_demo
 
     res = run_demo(tmp_path, progress=False, duration_s=20.0)
+    assert (res.estimator, res.matcher, res.profile) == ("taco+", "classical", "synthetic_rover")
+    assert res.plot_path == tmp_path / "taco+-classical" / "trajectory.png"
     assert res.plot_path.is_file() and res.plot_path.stat().st_size > 10_000
     doc = json.loads(res.results_path.read_text())
     assert doc["config"]["simulator"]["lockstep"] is True
     assert json.loads((res.world_dir / "world.json").read_text())["seed"] == DEMO_SEED
     assert_autopilot_accepts_rate(res.results)
     assert res.results["ate_m"] < 3.0
+    assert res.results["ekf_gates_ok"] and res.results["ekf_ready_after_s"] < 11.0
+    assert res.results["horiz_accuracy_max_m"] <= 5.0 and res.results["hdop_max"] <= 2.5

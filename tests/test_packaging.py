@@ -7,17 +7,21 @@ data found through importlib.resources), and that a short live run (synthetic wo
 rover -> daemon with profile `synthetic`, loopback UDP, lockstep) tracks the truth within 2 m ATE. The sdist
 is checked to carry the profiles too, so a wheel built from it has them.
 
-Build isolation is off (the venv's setuptools builds it, as .ci/run installs it), so the test needs no network.
+Build isolation is off (the venv's setuptools and wheel build it, which the `dev` extra brings), so the test needs
+no network. The README's set-up is what CI installs, command for command, and brings everything the tests need.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import shlex
 import shutil
 import subprocess
 import sys
 import tarfile
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -25,10 +29,44 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic",
-           "synthetic_3d")
+           "synthetic_3d", "synthetic_rover")
 PX4_PARAMS = ("px4_rover_solo", "px4_rover_handover")
 
 pytestmark = pytest.mark.slow
+
+
+def _installs(lines: list[str]) -> list[list[str]]:
+    """The install commands among shell lines (comments and pip's --quiet/-q dropped), each split at `&&`."""
+    out = []
+    for line in lines:
+        for cmd in line.split("#")[0].split("&&"):
+            words = [w for w in shlex.split(cmd) if w not in ("--quiet", "-q")]
+            if words[:2] == ["pip", "install"] or (words[:1] == ["python"] and "taco_mav" in " ".join(words)):
+                out.append(words)
+    return out
+
+
+def test_dev_extra_brings_what_the_tests_build_with() -> None:
+    """The wheel below is built without build isolation, with the venv's own setuptools and wheel: the dev extra
+    brings both, at the versions [build-system] asks for (a fresh venv has neither wheel nor setuptools >= 68)."""
+    meta = tomllib.loads((REPO / "pyproject.toml").read_text())
+    dev = meta["project"]["optional-dependencies"]["dev"]
+    for need in meta["build-system"]["requires"]:  # setuptools>=68, wheel
+        assert need in dev, (need, dev)
+    assert "setuptools>=68" in dev and "wheel" in dev and any(d.startswith("pytest") for d in dev)
+
+
+def test_ci_installs_what_the_readme_says_and_nothing_else() -> None:
+    """.ci/run's install commands are the README's set-up commands, in order: a test that needs more than the
+    README installs fails in CI too."""
+    readme = (REPO / "README.md").read_text()
+    block = re.search(r"## Set up[^\n]*\n+```bash\n(.*?)```", readme, re.S)
+    assert block, "README.md: no bash block under '## Set up'"
+    readme_cmds = _installs(block.group(1).splitlines())
+    ci_cmds = _installs((REPO / ".ci" / "run").read_text().splitlines())
+    assert readme_cmds == ci_cmds, (readme_cmds, ci_cmds)
+    assert ["pip", "install", "-e", ".[dev]"] in readme_cmds and ["pip", "install", "-e", ".[fg2]"] in readme_cmds
+    assert ["python", "-m", "taco_mav.core.ukf_aot"] in readme_cmds
 
 
 def _pip(*args: str, cwd: Path) -> None:

@@ -199,7 +199,7 @@ def ardupilot_rows(seq: dict) -> list[tuple[str, str]]:
                           f"{fmt(seq.get('gps_input_interval_avg_ms'), '.0f')} ms < {AVG_MAX_S * 1e3:.0f}; two "
                           f"gaps > {GAP_MAX_S * 1e3:.0f} ms in a row {seq.get('consecutive_gaps_over_245ms')} "
                           f"times)"),
-        ("EKF3 GPS checks (10 s)", f"{ekf} ({fmt(seq.get('ekf_gate_pass_fraction'), '.0%')} of GPS_INPUT pass)"),
+        ("EKF3 GPS checks (10 s)", f"{ekf} ({fmt(seq.get('ekf_gate_pass_fraction'), '.1%')} of GPS_INPUT pass)"),
         ("  HDOP p50 / max", f"{fmt(seq.get('hdop_p50'), '.2f')} / {fmt(seq.get('hdop_max'), '.2f')} "
                              f"(<= {GATE_HDOP_MAX:g})"),
         ("  accuracy p50 / max", f"{fmt(seq.get('horiz_accuracy_p50_m'), '.2f')} / "
