@@ -16,6 +16,7 @@ pytestmark = [pytest.mark.sitl, pytest.mark.skipif(
     reason="ArduPilot Rover SITL not available: set ARDUROVER to a build of ../shared/tools/build_ardupilot_sitl.sh")]
 
 sys.path.insert(0, str(ROOT / "tools"))
+from sitl_faults import daemon_summary  # noqa: E402
 from sitl_mission import MissionSpec, accuracy_failures, run_mission  # noqa: E402
 
 
@@ -145,3 +146,35 @@ def test_receiver_dragged_slowly_while_it_steers(tmp_path):
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     _fault_check(res, spec)
     assert res["daemon_events"].get("gnss_rejected", 0) >= 1, res["daemon_events"]
+
+
+def _never_follows(res: dict, spec: MissionSpec) -> None:
+    """Issue 37's bound for a camera that cannot read the ground: no runaway; while the rover moves, EKF3 within
+    max(3 m, 2x the accuracy we report) at least 95 % of the time; completed, or stopped by the autopilot's own
+    failsafe."""
+    assert res.get("verdict") != "runaway_stopped", res
+    assert res["true_speed_max_mps"] is not None and res["true_speed_max_mps"] <= 1.5 * spec.wp_speed, res
+    assert res["ekf_within_bound_moving_share"] is not None and res["ekf_within_bound_moving_share"] >= 0.95, res
+    assert res["mission_completed"] or any("failsafe" in t.lower() for t in res["statustext"]), res
+
+
+def test_a_camera_that_cannot_read_its_map_is_never_followed(tmp_path):
+    """Issue 37 (hand-over set-up: SITL's GNSS steers until 30 s into AUTO, then only our GPS2): the daemon's map
+    is another world's (seed 11) over the same ground, so every camera answer is wrong. None is fused (the answer
+    check: no better than the trigger's decoys); the camera's speed, which needs no map, and the IMU carry the
+    estimate on, and the ground station is told the camera is at chance."""
+    spec = MissionSpec(setup="handover", profile="ardupilot_rover_gps2", gnss_off_after_s=30.0, map_seed=11,
+                       laps=1, timeout_s=200.0)
+    res = run_mission(Path(ARDUROVER), tmp_path, spec)
+    _never_follows(res, spec)
+    fixes = daemon_summary(tmp_path / "daemon")["daemon_fixes"]
+    assert fixes.get("accepted", 0) == 0 and fixes.get("at_chance", 0) >= 5, fixes
+    assert any("AT_CHANCE" in t for t in res["statustext"]), res["statustext"]
+
+
+def test_a_3d_square_driven_through_buildings_never_follows_a_wrong_fix(tmp_path):
+    """Issue 37: the 3-D world with the square driven through its buildings and trees (before the answer check:
+    relocalisations of 22 and 34 m accepted, EKF3 119 m off, the mission stuck at waypoint 2 of 9)."""
+    spec = MissionSpec(setup="solo", realism="3d", keep_clear=False, world_seed=13, laps=1, timeout_s=200.0)
+    res = run_mission(Path(ARDUROVER), tmp_path, spec)
+    _never_follows(res, spec)

@@ -93,6 +93,7 @@ class Px4MissionSpec:
     params_file: str = "auto"
     restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO.MISSION and start it again
     realism: str = "flat"  # the world the camera sees (sitl_mission.build_world): flat or 3d
+    keep_clear: bool = True  # a 3-D world keeps its buildings and trees off the square (tools/sitl_mission.build_world)
 
     def sets_origin(self) -> bool:
         return self.setup == "solo" if self.gcs_sets_origin is None else self.gcs_sets_origin

@@ -32,7 +32,7 @@ import struct
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +76,12 @@ class MissionSpec:
     fault: str | None = None  # a fault on cue (tools/sitl_faults.py: camera, stall, link, glitch, spoof)
     fault_after_s: float = 60.0  # ... this long after AUTO
     realism: str = "flat"  # the world the camera sees: flat (the mosaic painted on the ground) or 3d (issue 31)
+    # the daemon's map is another world's mosaic (this seed) over the same ground: a camera that cannot read the
+    # map it is given, every answer wrong (issue 37); None: the world's own map
+    map_seed: int | None = None
+    # a 3-D world keeps its buildings, trees and cars off the square; False drives the square through them (issue
+    # 37: the camera cannot read the ground for long stretches)
+    keep_clear: bool = True
 
 
 def free_instance() -> int:
@@ -265,11 +271,11 @@ def build_world(out: Path, spec: Any) -> Path:
     SITL has no obstacles, and a real rover would not drive through a house."""
     world = out / "world"
     meta = world / "world.json"
-    if meta.exists() and json.loads(meta.read_text()).get("realism", "flat") == spec.realism:
+    if meta.exists() and json.loads(meta.read_text()).get("realism", "flat") == spec.realism and spec.keep_clear:
         return world
     cmd = [sys.executable, "-m", "taco_mav.cli", "world", "-q", "--out", str(world), "--seed", str(spec.world_seed),
            "--length-km", "0.6", f"--centre={spec.home[0]},{spec.home[1]}", "--realism", spec.realism, "--force"]
-    if spec.realism == "3d":
+    if spec.realism == "3d" and spec.keep_clear:
         square = [(0.0, 0.0)] + square_corners(spec.side_m)
         cmd.append("--keep-clear=" + ";".join(f"{e:g},{n:g}" for e, n in square))
     subprocess.run(cmd, check=True)
@@ -295,6 +301,10 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
     try:
         gcs = Gcs(5760 + 10 * inst)
         camera, port = f"world:{world}", 5762 + 10 * inst
+        wrong_map = []
+        if spec.map_seed is not None:
+            other = build_world(out / "other", replace(spec, world_seed=spec.map_seed))
+            wrong_map = ["--map", str(other / json.loads((other / "world.json").read_text())["mosaic"])]
         if spec.fault is not None:
             fault = FaultRun(spec.fault, spec.fault_after_s, out, gcs, spec.home, spec.setup)
             camera, port = fault.camera(world), fault.connect_port(port)
@@ -303,7 +313,7 @@ def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | Non
                       str(out / "daemon"), "--estimator", spec.estimator]
         if spec.daemon_origin:
             daemon_cmd.append(f"--origin={spec.home[0]},{spec.home[1]},{spec.home[2]}")
-        daemon_cmd += list(spec.daemon_args)
+        daemon_cmd += wrong_map + list(spec.daemon_args)
         shutil.rmtree(out / "daemon", ignore_errors=True)
         daemon = subprocess.Popen(daemon_cmd, stdout=open(out / "daemon.log", "w"), stderr=subprocess.STDOUT,
                                   start_new_session=True)
@@ -491,6 +501,7 @@ def score(log: list[tuple[float, Any]], spec: Any, auto_t: float | None, out: Pa
 
     ekf = paired("GLOBAL_POSITION_INT", "lat", "lon", 1e-7)
     ours = paired(ours_kind, "lat", "lon", 1e-7)
+    bounded = _ekf_bounded_share(log, T, ekf, ours_kind, auto_t)
     live = T[T[:, 0] >= auto_t] if auto_t is not None else T
     dt = np.diff(live[:, 0])
     speed = np.hypot(np.diff(live[:, 1]), np.diff(live[:, 2])) / np.maximum(dt, 1e-3)
@@ -509,12 +520,35 @@ def score(log: list[tuple[float, Any]], spec: Any, auto_t: float | None, out: Pa
         # error over reported 1-sigma (h_acc); > 3 means we claimed far more than we had
         "ours_error_over_hacc_max": float((ours[:, 1] / np.maximum(ours[:, 2], 0.1)).max()) if len(ours) else None,
         "ours_hacc_median_m": float(np.median(ours[:, 2])) if len(ours) else None,
+        "ekf_within_bound_moving_share": bounded,
     }
     if out is not None:
         np.savetxt(out / "truth.csv", T, fmt="%.3f", delimiter=",", header="wall_s,east_m,north_m")
         np.savetxt(out / "ekf_error.csv", ekf[:, :2], fmt="%.3f", delimiter=",", header="wall_s,error_m")
         np.savetxt(out / "ours_error.csv", ours, fmt="%.3f", delimiter=",", header="wall_s,error_m,h_acc_m")
     return res
+
+
+def _ekf_bounded_share(log: list[tuple[float, Any]], T: np.ndarray, ekf: np.ndarray, ours_kind: str,
+                       auto_t: float | None, moving_mps: float = 0.5) -> float | None:
+    """Share of the EKF's samples taken while the rover moves (truth faster than moving_mps) whose error is within
+    max(3 m, 2 x the 1-sigma we last reported): `ours_kind`'s h_acc, whatever its fix type (a degraded report's
+    accuracy counts: it told the autopilot how little to trust it). Issue 37's bound for a camera that cannot read
+    the ground. None without such samples."""
+    acc = [(t, m.h_acc * 1e-3) for t, m in log if m.get_type() == ours_kind and (auto_t is None or t >= auto_t)]
+    if not acc or len(ekf) == 0 or len(T) < 3:
+        return None
+    A = np.array(acc)
+    dt = np.maximum(np.diff(T[:, 0]), 1e-3)
+    v = np.r_[0.0, np.hypot(np.diff(T[:, 1]), np.diff(T[:, 2])) / dt]
+    v = np.convolve(v, np.ones(10) / 10.0, mode="same")  # 1 s mean: the truth's arrival jitter out
+    ok = []
+    for t, err, _ in ekf:
+        i, j = int(np.searchsorted(T[:, 0], t)) - 1, int(np.searchsorted(A[:, 0], t)) - 1
+        if i < 0 or j < 0 or v[i] < moving_mps:
+            continue
+        ok.append(err <= max(3.0, 2.0 * A[j, 1]))
+    return float(np.mean(ok)) if ok else None
 
 
 def sent_score(daemon_dir: Path, spec: Any, auto_t: float | None, out: Path | None = None, *,
@@ -627,6 +661,11 @@ def main() -> int:
     ap.add_argument("--fault", choices=FAULT_KINDS, help="a fault on cue (tools/sitl_faults.py; glitch and spoof "
                                                          "need --setup handover)")
     ap.add_argument("--fault-after", type=float, default=60.0, help="seconds after AUTO the fault starts")
+    ap.add_argument("--world-seed", type=int, default=7, help="the world's seed (default 7)")
+    ap.add_argument("--through", action="store_true", help="3d: drive the square through the buildings and trees "
+                    "(no --keep-clear)")
+    ap.add_argument("--map-seed", type=int, help="give the daemon another world's map (this seed) over the same "
+                    "ground: a camera that cannot read the map it has")
     a = ap.parse_args()
     if not a.ardurover or not Path(a.ardurover).exists():
         print("sitl_mission: error: --ardurover (or $ARDUROVER) must name the SITL binary", file=sys.stderr)
@@ -635,7 +674,7 @@ def main() -> int:
                        gnss_off_after_s=a.gnss_off_after, estimator=a.estimator, timeout_s=a.timeout,
                        daemon_origin=a.daemon_origin, restart_after_s=a.restart_after,
                        daemon_args=tuple(a.daemon_arg), fault=a.fault, fault_after_s=a.fault_after,
-                       realism=a.realism,
+                       realism=a.realism, world_seed=a.world_seed, map_seed=a.map_seed, keep_clear=not a.through,
                        profile=a.profile or ("ardupilot_rover_gps2" if a.setup == "handover" else "ardupilot_rover"))
     res = run_mission(Path(a.ardurover), Path(a.out), spec)
     print(json.dumps({k: v for k, v in res.items() if k not in ("spec", "statustext")}, indent=1, default=float))
