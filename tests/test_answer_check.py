@@ -38,7 +38,8 @@ def test_the_paper_defaults_take_every_finite_answer() -> None:
     paper = AnswerParams()
     res = [answer(0.01, 0.9), answer(0.5), None, answer(float("nan"))]
     assert credible(res, paper).tolist() == [True, True, False, False]
-    assert supported(np.array([[0.0, 0.0], [50.0, 0.0]]), np.array([True, True]), 0, 5, paper)
+    xy = np.array([[0.0, 0.0], [50.0, 0.0]])
+    assert supported(xy, np.array([True, True]), 0, xy, paper)
 
 
 def test_w_min_alone() -> None:
@@ -46,12 +47,31 @@ def test_w_min_alone() -> None:
     assert credible([answer(0.49), answer(0.5)], p).tolist() == [False, True]
 
 
-def test_support_counts_credible_answers_near_the_chosen_one() -> None:
+CROSS = np.array([[-9.0, 0.0], [0.0, 0.0], [9.0, 0.0], [0.0, 9.0], [0.0, -9.0]])  # back, centre, fwd, left, right
+
+
+def test_support_counts_credible_answers_near_the_chosen_one_among_the_crops_that_could_give_it() -> None:
     xy = np.array([[0.0, 0.0], [1.0, 1.0], [2.5, 0.0], [20.0, 0.0], [np.nan, np.nan]])
     ok = np.array([True, True, True, True, False])
-    assert supported(xy, ok, 0, 5, ON)  # 3 of 5 within 3 m: a majority
-    assert not supported(xy, ok, 3, 5, ON)  # 1 of 5
-    ok2 = np.array([True, True, False, True, False])
-    assert not supported(xy, ok2, 0, 5, ON)  # the third is near but not credible: 2 of 5
-    assert supported(xy, ok2, 0, 4, ON)  # 2 of 4 answered
-    assert supported(xy[:1], ok[:1], 0, 1, ON)  # a single-crop trigger: itself
+    assert supported(xy, ok, 0, CROSS, ON)  # 3 of the 4 answered crops within 20 m: a majority
+    assert supported(xy, np.array([True, True, False, True, False]), 0, CROSS, ON)  # 2 of 4: half
+    ok2 = np.array([True, False, False, True, False])
+    assert not supported(xy, ok2, 0, CROSS, ON)  # the second and third are near but not credible: 1 of 4
+    # an answer 30 m off: only the forward crop's centre lies within 20 m of it, and one crop is never enough
+    far = np.array([[30.0, 0.0], [30.5, 0.0], [30.0, 0.5], [30.2, 0.2], [30.1, 0.0]])
+    assert not supported(far, np.ones(5, bool), 2, CROSS, ON)
+    assert supported(xy[:1], ok[:1], 0, CROSS[:1], ON)  # a single-crop trigger: itself
+
+
+def test_in_a_recovery_grid_only_the_nearby_crops_are_asked_to_agree() -> None:
+    # taco+'s hexagonal grid, 15 m spacing: an answer near one edge is seen by the crops within 20 m only
+    ring = [(15.0 * math.cos(a), 15.0 * math.sin(a)) for a in np.arange(6) * math.pi / 3]
+    ring2 = [(30.0 * math.cos(a), 30.0 * math.sin(a)) for a in np.arange(6) * math.pi / 3]
+    centres = np.array([(0.0, 0.0)] + ring + ring2)
+    truth = np.array([22.0, 2.0])
+    near = np.linalg.norm(centres - truth, axis=1) <= 20.0
+    xy = np.where(near[:, None], truth + 0.3, np.array([-40.0, 0.0]) + np.arange(13)[:, None])
+    ok = np.ones(13, bool)
+    k = int(np.flatnonzero(near)[0])
+    assert near.sum() == 3 and supported(xy, ok, k, centres, ON)  # 3 of 3 that could see it; 10 others could not
+    assert not supported(xy, ok & ~near | (np.arange(13) == k), k, centres, ON)  # alone of the three: not enough

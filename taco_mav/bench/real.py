@@ -168,11 +168,11 @@ class _Asker:
         if p.estimator is Estimator.TACO_PLUS:
             usable &= w >= p.plus.w_min
             c = consensus(np.nan_to_num(xy), w, usable, p.plus.consensus_radius_m, p.plus.consensus_weight_power)
-            if c is not None and supported(xy, usable, c.index, int(finite.sum()), p.answer):
+            if c is not None and supported(xy, usable, c.index, centres, p.answer):
                 fix = c.xy
         elif usable.any():
             k = int(np.argmax(np.where(usable, w, -1.0)))
-            if supported(xy, usable, k, int(finite.sum()), p.answer):
+            if supported(xy, usable, k, centres, p.answer):
                 fix = xy[k]
         best = int(np.argmax(w))
         err = float(np.hypot(*(xy[best] - truth_en))) if finite[best] else math.inf

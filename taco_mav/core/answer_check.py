@@ -7,11 +7,13 @@ weights too. So each trigger also asks the matcher for decoys (`taco_mav.cvgl.se
 centre crop turned by a quarter, half and three quarters of a turn, a heading known wrong. What the matcher scores
 there with a yaw residual within the gate (an answer that takes the wrong heading as right) is this scene's chance
 level, and it travels with each answer as `MatchResult.null_w`. A matcher that recovers the turn (|psi| beyond the
-gate) has recognised the place: that is no evidence of chance and is not counted.
+gate) has recognised the place, and a decoy that lands where the answer does has found the same ground turned (a
+crossing looks alike a quarter turn round): neither is evidence of chance and neither counts.
 
 An answer is credible when it is usable (finite, w >= w_min) and, where the trigger had decoys, its log-odds
-log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`. An answer is then supported when at least
-`min_agree_share` of the trigger's answered crops are credible and place the camera within `agree_radius_m` of it.
+log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`. An answer is then supported when, of the trigger's
+crops that could give it (centre within `agree_window_m`), at least `min_agree_share` and at least two are credible
+and place the camera within `agree_radius_m` of it.
 Agreement alone is no evidence (a chance peak lies inside every crop's search window and all five find it: on the
 real pairs the five positions were within 0.02 m of each other as often for wrong answers as for right ones), but
 credible answers that only one or two crops of five give are.
@@ -54,12 +56,20 @@ def credible(results: Sequence[MatchResult | None], p: AnswerParams) -> np.ndarr
     return out
 
 
-def supported(xy: np.ndarray, ok: np.ndarray, index: int, answered: int, p: AnswerParams) -> bool:
-    """Whether the chosen answer `index` is supported: the credible answers (ok, (K,) bool) whose positions xy
-    ((K, 2), m) lie within p.agree_radius_m of it number at least p.min_agree_share of the `answered` crops."""
+def supported(xy: np.ndarray, ok: np.ndarray, index: int, centres: np.ndarray, p: AnswerParams) -> bool:
+    """Whether the chosen answer `index` is supported: of the answered crops whose centre (centres (K, 2), m)
+    lies within p.agree_window_m of it, at least p.min_agree_share, and at least two, are credible (ok, (K,)
+    bool) and place the camera (xy (K, 2), m; nan where a crop has no answer) within p.agree_radius_m of it. A
+    single-crop trigger supports itself."""
     if p.min_agree_share <= 0.0:
         return True
     pts = np.asarray(xy, float).reshape(-1, 2)
+    answered = np.isfinite(pts).all(axis=1)
+    if int(answered.sum()) <= 1:
+        return bool(ok[index])
+    c = np.asarray(centres, float).reshape(-1, 2)
     with np.errstate(invalid="ignore"):
+        seeing = answered & (np.linalg.norm(c - pts[index], axis=1) <= p.agree_window_m)
         near = np.linalg.norm(pts - pts[index], axis=1) <= p.agree_radius_m
-    return int(np.sum(near & ok)) >= math.ceil(p.min_agree_share * answered - 1e-9)
+    need = max(2, math.ceil(p.min_agree_share * int(seeing.sum()) - 1e-9))
+    return int(np.sum(near & ok & seeing)) >= need

@@ -103,12 +103,12 @@ class PaperMode:
         weights = tuple(float(r.w) if r is not None else 0.0 for r in results)
         a = self.p.answer
         checked = a.decoys > 0 or a.w_min > 0.0 or a.min_agree_share > 0.0  # off under the paper's defaults
-        answered = sum(r is not None for r in results)
+        raw = results
         if checked:  # the answer check (answer_check.py)
             ok = credible(results, a)
             results = [r if good else None for r, good in zip(results, ok)]
         k = best_candidate([r if r is not None else _NO_MATCH for r in results])
-        if checked and not self._supported(q, results, ok, k, answered):
+        if checked and not (ok[k] and self._supported(q, raw, ok, k)):
             host.last_fix_t = max(host.last_fix_t, now if self.p.latency.apply_on_arrival else q.capture_t)
             return host.log(FixOutcome(query_id, False, "at_chance", q.capture_t, now, weights=weights))
         best = results[k]
@@ -128,15 +128,12 @@ class PaperMode:
         nis = host.fuse(tick, xy, s_f, s_l)
         return host.log(FixOutcome(query_id, True, "accepted", q.capture_t, now, k, xy, psi, s_f, s_l, nis, weights))
 
-    def _supported(self, q: FixQuery, results: Sequence[MatchResult | None], ok: np.ndarray, k: int,
-                   answered: int) -> bool:
-        """Whether the answer check passes the chosen crop k (results: the credible ones, others None; answered:
-        the crops that had an answer)."""
-        if not ok[k]:
-            return False
+    def _supported(self, q: FixQuery, results: Sequence[MatchResult | None], ok: np.ndarray, k: int) -> bool:
+        """Whether the answer check's agreement holds for the chosen crop k (results: every crop's answer; ok: the
+        credible ones)."""
         xy = np.array([fix_position(q.crop_centres[i], q.heading, r.t, self.p.camera_lever_fwd_left_m)
                        if r is not None else (np.nan, np.nan) for i, r in enumerate(results)])
-        return supported(xy, ok, k, answered, self.p.answer)
+        return supported(xy, ok, k, q.crop_centres, self.p.answer)
 
     def estimate(self, est: Estimate) -> Estimate:
         """The filter's own estimate, as it is."""

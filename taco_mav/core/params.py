@@ -94,13 +94,19 @@ class AnswerParams:
     # The least log-odds log(w / (1 - w)) by which an answer must beat the decoys' (the classical matcher's w is a
     # logistic of its PSR with scale 0.5, so 4 = 2 PSR units: about two sidelobe standard deviations).
     decoy_margin: float = field(default=0.0, metadata=bounded(0.0, 50.0))
-    # The least share of the trigger's answered crops that must be credible and agree with the chosen answer
-    # (within agree_radius_m): a matcher that has found the camera finds it in every crop whose search window
-    # holds it, so an answer only one or two of five crops give is as much the crop's as the place's (real pairs:
+    # The least share of the crops that could give the chosen answer (agree_window_m) that must be credible and
+    # agree with it (within agree_radius_m): a matcher that has found the camera finds it in every crop whose
+    # search window holds it, so an answer only one or two of five crops give is as much the crop's as the place's (real pairs:
     # the three answers of 96 that beat the decoys were 28-46 m off, given by one or two crops; every synthetic
     # pair's right answer by five of five). 0: one crop is enough.
     min_agree_share: float = field(default=0.0, metadata=bounded(0.0, 1.0))
-    agree_radius_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))  # as plus.consensus_radius_m
+    # Answers within this of each other agree, m (as plus.consensus_radius_m); a decoy's answer this close to an
+    # answer found the same place turned (a crossing looks alike a quarter turn round) and is not chance.
+    agree_radius_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))
+    # The crops that could give an answer: those whose centre lies within this of it, m (the classical matcher
+    # searches 30 m round a crop's centre; taco+'s recovery grid spaces crops 15 m apart, so 20 m holds the six
+    # or seven nearest). With min_agree_share > 0 at least two of them must agree.
+    agree_window_m: float = field(default=20.0, metadata=bounded(0.0, open_lo=True))
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from taco_mav.config import Profile
+from taco_mav.core.search import fix_position
 from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame, Matcher
 from taco_mav.cvgl.satellite import SatelliteMap
@@ -59,20 +60,30 @@ def uses_device_crops(matcher: object) -> bool:
 DECOY_TURNS_RAD = (0.5 * math.pi, -0.5 * math.pi, math.pi)  # decoy k turns the centre crop by the k-th of these
 
 
-def chance_level(decoys: Sequence[MatchResult | None], yaw_gate_rad: float | None) -> float | None:
-    """The highest w among decoy answers that take the decoy's (wrong) heading as right: |psi| within the yaw
-    gate (None: every answer). 0.0 when every decoy answer recovered the turn or was off the map; None without
-    decoys."""
-    if not decoys:
-        return None
-    level = 0.0
-    for r in decoys:
-        if r is None or not math.isfinite(r.w):
+def chance_levels(own: Sequence[MatchResult | None], own_xy: np.ndarray, decoys: Sequence[MatchResult | None],
+                  decoy_xy: np.ndarray, yaw_gate_rad: float | None, apart_m: float) -> list[float | None]:
+    """Each own answer's chance level: the highest w among decoy answers that take the decoy's (wrong) heading as
+    right (|psi| within the yaw gate; None: every answer) and place the camera more than `apart_m` from that answer
+    (a decoy that lands on the answer has found the same place turned: symmetric ground, a crossing, not chance).
+    own_xy (K, 2) / decoy_xy (D, 2): where each answer puts the camera, m in one frame. 0.0 when no decoy counts;
+    None for a crop without an answer."""
+    out: list[float | None] = []
+    for r, xy in zip(own, own_xy):
+        if r is None:
+            out.append(None)
             continue
-        psi = math.atan2(float(r.R[1, 0]), float(r.R[0, 0]))
-        if yaw_gate_rad is None or abs(psi) <= yaw_gate_rad:
-            level = max(level, float(r.w))
-    return level
+        level = 0.0
+        for d, dxy in zip(decoys, decoy_xy):
+            if d is None or not math.isfinite(d.w):
+                continue
+            psi = math.atan2(float(d.R[1, 0]), float(d.R[0, 0]))
+            if yaw_gate_rad is not None and abs(psi) > yaw_gate_rad:
+                continue
+            if np.all(np.isfinite(xy)) and np.all(np.isfinite(dxy)) and float(np.hypot(*(dxy - xy))) <= apart_m:
+                continue
+            level = max(level, float(d.w))
+        out.append(level)
+    return out
 
 
 class FixService:
@@ -80,11 +91,13 @@ class FixService:
     image-less drives: crops then carry an empty image but the right centre and heading); origin_utm: (2,)
     UTM easting/northing of the Localiser's origin; crop_size_px and m_per_px from the profile's `map`; decoys:
     crops turned to a heading known wrong asked beside each trigger (profile answer.decoys, 0-3; their in-gate
-    answers set each answer's `null_w`, core/answer_check.py), yaw_gate_rad the gate that tells an in-gate answer
-    (profile gate.yaw_residual_max_rad; None: the gate is off)."""
+    answers away from an answer set its `null_w`, core/answer_check.py), yaw_gate_rad the gate that tells an
+    in-gate answer (profile gate.yaw_residual_max_rad; None: the gate is off), decoy_apart_m how far from an answer
+    a decoy's must land to count (profile answer.agree_radius_m)."""
 
     def __init__(self, matcher: Matcher, sat_map: SatelliteMap | None, origin_utm: np.ndarray, crop_size_px: int = 512,
-                 m_per_px: float = 0.2, *, decoys: int = 0, yaw_gate_rad: float | None = None) -> None:
+                 m_per_px: float = 0.2, *, decoys: int = 0, yaw_gate_rad: float | None = None,
+                 decoy_apart_m: float = 3.0) -> None:
         if not 0 <= decoys <= len(DECOY_TURNS_RAD):
             raise ValueError(f"decoys {decoys}: 0 to {len(DECOY_TURNS_RAD)}")
         self.matcher = matcher
@@ -94,6 +107,7 @@ class FixService:
         self.m_per_px = float(m_per_px)
         self.decoy_turns = DECOY_TURNS_RAD[:decoys] if sat_map is not None else ()
         self.yaw_gate_rad = yaw_gate_rad
+        self.decoy_apart_m = float(decoy_apart_m)
         self.stats = ServiceStats()
 
     def crops(self, query: FixQuery, n_own: int | None = None) -> list[Crop | None]:
@@ -152,9 +166,13 @@ class FixService:
         it = iter(results)
         aligned = [next(it) if p else None for p in present]
         own, decoys = aligned[:n_own], aligned[n_own:]
-        level = chance_level(decoys, self.yaw_gate_rad)
-        if level is not None:
-            own = [dataclasses.replace(r, null_w=level) if r is not None else None for r in own]
+        if self.decoy_turns:
+            centres = np.asarray(decoy_q.crop_centres, dtype=float).reshape(-1, 2)
+            headings = [float(query.heading)] * n_own + [float(query.heading) + t for t in self.decoy_turns]
+            xy = np.array([fix_position(c, h, r.t) if r is not None else (np.nan, np.nan)
+                           for c, h, r in zip(centres, headings, aligned)]).reshape(-1, 2)
+            levels = chance_levels(own, xy[:n_own], decoys, xy[n_own:], self.yaw_gate_rad, self.decoy_apart_m)
+            own = [dataclasses.replace(r, null_w=lv) if r is not None else None for r, lv in zip(own, levels)]
         if not any(present[:n_own]):
             self.stats.triggers_off_map += 1
         self.stats.answered += 1
@@ -190,4 +208,5 @@ def profile_service(matcher: Matcher, sat_map: SatelliteMap | None, origin_utm: 
     The evaluator, the daemon and the real-imagery bench all build it here."""
     return FixService(matcher, sat_map, origin_utm, profile.map.crop_size_px, profile.map.crop_m_per_px,
                       decoys=profile.answer.decoys,
-                      yaw_gate_rad=profile.gate.yaw_residual_max_rad if profile.gate.enabled else None)
+                      yaw_gate_rad=profile.gate.yaw_residual_max_rad if profile.gate.enabled else None,
+                      decoy_apart_m=profile.answer.agree_radius_m)

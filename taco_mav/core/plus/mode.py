@@ -264,7 +264,7 @@ class PlusMode:
             answers.failed(reason, 0.0, self.odo)
             return host.log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
         k, z = c.index, c.xy
-        if not supported(xy, usable, k, int(finite.sum()), p.answer):  # one or two crops of five: the crops'
+        if not supported(xy, usable, k, q.crop_centres, p.answer):  # one or two crops of five: the crops' own
             answers.failed("at_chance", 0.0, self.odo)
             return host.log(FixOutcome(query_id, False, "at_chance", q.capture_t, now, k, z, psi[k], weights=weights))
         tick = host.capture_tick(q)
