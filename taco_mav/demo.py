@@ -44,7 +44,8 @@ RUN_FILES = ("results.json", "trajectory.png")  # with daemon/: what a run write
 
 @dataclass(frozen=True)
 class DemoResult:
-    """results: the drive's results.json entry; paths of the files written; wall_s: run time in seconds."""
+    """results: the drive's results.json entry; paths of the files written; wall_s: run time in seconds; daemon:
+    the daemon's summary; estimator, matcher and profile (its name): what ran."""
 
     drive: str
     results: dict[str, Any]
