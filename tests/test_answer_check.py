@@ -39,7 +39,7 @@ def test_the_paper_defaults_take_every_finite_answer() -> None:
     res = [answer(0.01, 0.9), answer(0.5), None, answer(float("nan"))]
     assert credible(res, paper).tolist() == [True, True, False, False]
     xy = np.array([[0.0, 0.0], [50.0, 0.0]])
-    assert supported(xy, np.array([True, True]), 0, xy, paper)
+    assert supported(xy, 0, xy, paper)
 
 
 def test_w_min_alone() -> None:
@@ -50,17 +50,16 @@ def test_w_min_alone() -> None:
 CROSS = np.array([[-9.0, 0.0], [0.0, 0.0], [9.0, 0.0], [0.0, 9.0], [0.0, -9.0]])  # back, centre, fwd, left, right
 
 
-def test_support_counts_credible_answers_near_the_chosen_one_among_the_crops_that_could_give_it() -> None:
+def test_support_counts_the_answers_near_the_chosen_one_among_the_crops_that_could_give_it() -> None:
     xy = np.array([[0.0, 0.0], [1.0, 1.0], [2.5, 0.0], [20.0, 0.0], [np.nan, np.nan]])
-    ok = np.array([True, True, True, True, False])
-    assert supported(xy, ok, 0, CROSS, ON)  # 3 of the 4 answered crops within 20 m: a majority
-    assert supported(xy, np.array([True, True, False, True, False]), 0, CROSS, ON)  # 2 of 4: half
-    ok2 = np.array([True, False, False, True, False])
-    assert not supported(xy, ok2, 0, CROSS, ON)  # the second and third are near but not credible: 1 of 4
+    assert supported(xy, 0, CROSS, ON)  # 3 of the 4 answered crops within 20 m agree: a majority
+    xy2 = xy.copy()
+    xy2[1:3] = [[-12.0, 5.0], [14.0, -6.0]]
+    assert not supported(xy2, 0, CROSS, ON)  # alone among four: the crop's own peak
     # an answer 30 m off: only the forward crop's centre lies within 20 m of it, and one crop is never enough
     far = np.array([[30.0, 0.0], [30.5, 0.0], [30.0, 0.5], [30.2, 0.2], [30.1, 0.0]])
-    assert not supported(far, np.ones(5, bool), 2, CROSS, ON)
-    assert supported(xy[:1], ok[:1], 0, CROSS[:1], ON)  # a single-crop trigger: itself
+    assert not supported(far, 2, CROSS, ON)
+    assert supported(xy[:1], 0, CROSS[:1], ON)  # a single-crop trigger: itself
 
 
 def test_in_a_recovery_grid_only_the_nearby_crops_are_asked_to_agree() -> None:
@@ -71,7 +70,7 @@ def test_in_a_recovery_grid_only_the_nearby_crops_are_asked_to_agree() -> None:
     truth = np.array([22.0, 2.0])
     near = np.linalg.norm(centres - truth, axis=1) <= 20.0
     xy = np.where(near[:, None], truth + 0.3, np.array([-40.0, 0.0]) + np.arange(13)[:, None])
-    ok = np.ones(13, bool)
     k = int(np.flatnonzero(near)[0])
-    assert near.sum() == 3 and supported(xy, ok, k, centres, ON)  # 3 of 3 that could see it; 10 others could not
-    assert not supported(xy, ok & ~near | (np.arange(13) == k), k, centres, ON)  # alone of the three: not enough
+    assert near.sum() == 3 and supported(xy, k, centres, ON)  # 3 of 3 that could see it; 10 others could not
+    alone = np.where((np.arange(13) == k)[:, None], xy, np.array([-40.0, 0.0]) + np.arange(13)[:, None])
+    assert not supported(alone, k, centres, ON)  # alone of the three: not enough

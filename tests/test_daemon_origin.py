@@ -303,6 +303,11 @@ def test_shadow_twin_measures_its_error_while_gnss_is_honest(world: Path, tmp_pa
     s = daemon.summary()
     assert s["shadow"]["reports"] == len(shadows)
     assert s["fixes"].get("shadow_accepted", 0) >= 0.8 * s["fixes"].get("accepted", 0) > 0
+    # the survey: the twin's camera fixes compared with the receiver while it was there (the first 40 s)
+    drive = s["shadow"]["survey"]["drive"]
+    assert drive["verdict"] == "usable" and drive["answers"] >= 5 and drive["precision"] >= 0.95, drive
+    assert drive["median_error_m"] <= 1.0 and drive["accepted"] <= s["fixes"]["shadow_accepted"]
+    assert [st["start_m"] for st in s["shadow"]["survey"]["stretches"]][:2] == [0.0, 200.0]
     _assert_rate(seq)
     assert seq["ate_denied_m"] <= 1.0
 

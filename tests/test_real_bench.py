@@ -36,12 +36,12 @@ def test_on_real_imagery_nothing_wrong_is_accepted_and_the_unchecked_matcher_rep
     # the answer check: nothing accepted, or what is accepted right; nothing on another place's map
     assert keys["real_accepted_precision"] is None or keys["real_accepted_precision"] >= 0.95
     assert keys["real_wrong_map_accepted_share"] <= 0.01
-    # without the check taco+'s own w_min (0.2) lets confidently wrong answers through (what the issue found:
-    # all 12 places, 17 % of the views, every one 14-46 m off; 14 % on another place's map)
+    # without the check a lost taco+ takes confidently wrong answers as relocalisation candidates (all 12 places:
+    # 3 % of the views, every one 14-46 m off, and 2 % on another place's map; these 4 places: 2 of 32 and 1)
     bare = replace_in(rover, "answer", AnswerParams())
     _, unchecked = real.evaluate_real(root, bare, places_per_set=PLACES)
-    assert unchecked["real_accepted_share"] >= 0.1 and unchecked["real_accepted_precision"] <= 0.1
-    assert unchecked["real_wrong_map_accepted_share"] >= 0.05
+    assert unchecked["real_accepted_share"] > 0.0 and unchecked["real_accepted_precision"] == 0.0
+    assert unchecked["real_wrong_map_accepted_share"] > 0.0
     # the same seed gives the same figures
     assert real.evaluate_real(root, rover, places_per_set=PLACES)[1] == keys
 

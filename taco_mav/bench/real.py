@@ -142,10 +142,10 @@ class _Asker:
     def ask(self, view: View, smap: SatelliteMap, truth_en: np.ndarray, prior_en: np.ndarray,
             heading: float) -> Verdict:
         """A query at prior_en (absolute UTM, m) with the ENU heading (rad), judged as the profile's mode judges
-        it before its filter gates: the answer check (core/answer_check.py), then the yaw gate and, in taco+,
-        plus.w_min and the consensus over the crops. The innovation gate is not applied: the prior's covariance
-        is the filter's, and while lock is lost the shipped profiles recover without one (plus.recover_chi2_gate
-        0). truth_en: the camera's UTM position."""
+        an answer where no gate against the track stands: taco+ while lock is lost (the shipped profiles recover
+        without an innovation gate, plus.recover_chi2_gate 0: what a relocalisation faces), with plus.recover_w_min,
+        the yaw gate, the answer check (core/answer_check.py) and the consensus; paper mode with the yaw gate and
+        the check. truth_en: the camera's UTM position."""
         p = self.profile
         offsets = cross_offsets(self.arm, p.trigger.multi_crop)
         centres = prior_en[None, :] + body_to_world(heading, offsets)
@@ -161,22 +161,24 @@ class _Asker:
                 psi[k] = math.atan2(r.R[1, 0], r.R[0, 0])
                 w[k] = r.w
         finite = np.isfinite(xy).all(axis=1)
-        usable = credible(results, p.answer) & finite
+        usable = finite.copy()
         if p.gate.enabled:
             usable &= np.abs(np.nan_to_num(psi)) <= p.gate.yaw_residual_max_rad
         fix = np.full(2, np.nan)
-        if p.estimator is Estimator.TACO_PLUS:
-            usable &= w >= p.plus.w_min
+        if p.estimator is Estimator.TACO_PLUS:  # as taco+ while lock is lost: recover_w_min, the check, consensus
+            usable &= (w >= p.plus.recover_w_min) & credible(results, p.answer)
             c = consensus(np.nan_to_num(xy), w, usable, p.plus.consensus_radius_m, p.plus.consensus_weight_power)
-            if c is not None and supported(xy, usable, c.index, centres, p.answer):
+            if c is not None and supported(xy, c.index, centres, p.answer):
                 fix = c.xy
-        elif usable.any():
-            k = int(np.argmax(np.where(usable, w, -1.0)))
-            if supported(xy, usable, k, centres, p.answer):
-                fix = xy[k]
+        else:  # paper mode: the check, then the best answer
+            usable &= credible(results, p.answer)
+            if usable.any():
+                k = int(np.argmax(np.where(usable, w, -1.0)))
+                if supported(xy, k, centres, p.answer):
+                    fix = xy[k]
         best = int(np.argmax(w))
         err = float(np.hypot(*(xy[best] - truth_en))) if finite[best] else math.inf
-        null = next((r.null_w for r in results if r is not None), None)
+        null = results[best].null_w if results[best] is not None else None
         accepted = bool(np.isfinite(fix).all())
         return Verdict(err, float(w[best]), null, accepted,
                        float(np.hypot(*(fix - truth_en))) if accepted else math.nan)

@@ -1,24 +1,29 @@
-"""Whether a matcher's answer says more than chance: the check every mode runs before its own gates.
+"""Whether a matcher's answer says more than chance: the check that stands where no gate against the track does.
 
 A matcher's weight w is its confidence that the answer is right, but on a scene it cannot read its best wrong
 answer can carry as high a w as a right one: on real Street View beside satellite imagery the classical matcher's
-w was as high for answers 20-40 m off as the highest it gave (issue 37), FG2's silent outliers carry ordinary
+w was as high for answers 20-40 m off as the highest it gave (issue 37), and FG2's silent outliers carry ordinary
 weights too. So each trigger also asks the matcher for decoys (`taco_mav.cvgl.service.FixService`): the trigger's
-centre crop turned by a quarter, half and three quarters of a turn, a heading known wrong. What the matcher scores
+centre crop turned by a quarter, three quarters and half a turn, a heading known wrong. What the matcher scores
 there with a yaw residual within the gate (an answer that takes the wrong heading as right) is this scene's chance
 level, and it travels with each answer as `MatchResult.null_w`. A matcher that recovers the turn (|psi| beyond the
 gate) has recognised the place, and a decoy that lands where the answer does has found the same ground turned (a
 crossing looks alike a quarter turn round): neither is evidence of chance and neither counts.
 
 An answer is credible when it is usable (finite, w >= w_min) and, where the trigger had decoys, its log-odds
-log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`. An answer is then supported when, of the trigger's
-crops that could give it (centre within `agree_window_m`), at least `min_agree_share` and at least two are credible
-and place the camera within `agree_radius_m` of it.
-Agreement alone is no evidence (a chance peak lies inside every crop's search window and all five find it: on the
-real pairs the five positions were within 0.02 m of each other as often for wrong answers as for right ones), but
-credible answers that only one or two crops of five give are.
+log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`; it is supported when, of the trigger's
+crops that could give it (centre within `agree_window_m`), at least `min_agree_share` and at least two place the
+camera within `agree_radius_m` of it. Agreement alone is no evidence (a chance peak lies inside every crop's
+search window, and the five crops often find it within 0.02 m of each other), nor is beating the decoys alone
+(the best of five crops against the best of three decoys: three real answers 28-46 m off did, each given by one
+crop); both together refused every answer on the real pairs and kept every right one on the synthetic pairs.
 
-Weights in [0, 1]; pure maths, no I/O.
+Where it applies: paper mode, which has no gate of its own, and taco+ while lock is lost, when nothing but this
+stands between an answer and a relocalisation (the relocalisations of 22 and 34 m issue 37 saw). While locked,
+taco+'s innovation gate against the track decides: on SITL's 3-D world its right answers have w 0.2-0.5 beside
+decoys at 0.7-0.99 (the synthetic streets repeat), which the decoy test would refuse.
+
+Weights in [0, 1]; positions metres; pure maths, no I/O.
 """
 
 from __future__ import annotations
@@ -56,20 +61,19 @@ def credible(results: Sequence[MatchResult | None], p: AnswerParams) -> np.ndarr
     return out
 
 
-def supported(xy: np.ndarray, ok: np.ndarray, index: int, centres: np.ndarray, p: AnswerParams) -> bool:
-    """Whether the chosen answer `index` is supported: of the answered crops whose centre (centres (K, 2), m)
-    lies within p.agree_window_m of it, at least p.min_agree_share, and at least two, are credible (ok, (K,)
-    bool) and place the camera (xy (K, 2), m; nan where a crop has no answer) within p.agree_radius_m of it. A
-    single-crop trigger supports itself."""
+def supported(xy: np.ndarray, index: int, centres: np.ndarray, p: AnswerParams) -> bool:
+    """Whether the chosen answer `index` is supported: of the answered crops whose centre (centres (K, 2), m) lies
+    within p.agree_window_m of it, at least p.min_agree_share, and at least two, place the camera (xy (K, 2), m;
+    nan where a crop has no answer) within p.agree_radius_m of it. A single-crop trigger supports itself."""
     if p.min_agree_share <= 0.0:
         return True
     pts = np.asarray(xy, float).reshape(-1, 2)
     answered = np.isfinite(pts).all(axis=1)
     if int(answered.sum()) <= 1:
-        return bool(ok[index])
+        return bool(answered[index])
     c = np.asarray(centres, float).reshape(-1, 2)
     with np.errstate(invalid="ignore"):
         seeing = answered & (np.linalg.norm(c - pts[index], axis=1) <= p.agree_window_m)
         near = np.linalg.norm(pts - pts[index], axis=1) <= p.agree_radius_m
     need = max(2, math.ceil(p.min_agree_share * int(seeing.sum()) - 1e-9))
-    return int(np.sum(near & ok & seeing)) >= need
+    return int(np.sum(near & seeing)) >= need

@@ -133,7 +133,7 @@ class PaperMode:
         credible ones)."""
         xy = np.array([fix_position(q.crop_centres[i], q.heading, r.t, self.p.camera_lever_fwd_left_m)
                        if r is not None else (np.nan, np.nan) for i, r in enumerate(results)])
-        return supported(xy, ok, k, q.crop_centres, self.p.answer)
+        return supported(xy, k, q.crop_centres, self.p.answer)
 
     def estimate(self, est: Estimate) -> Estimate:
         """The filter's own estimate, as it is."""

@@ -41,7 +41,7 @@ from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame, Matcher
 from taco_mav.daemon.eventlog import EventLog
-from taco_mav.daemon.shadow import twin_fix
+from taco_mav.daemon.shadow import Shadow, twin_fix
 from taco_mav.daemon.worker import FetchFn, MatchWorker, WorkResult
 from taco_mav.errors import ConfigError
 from taco_mav.mavlink import encoders
@@ -299,9 +299,11 @@ class FixPipeline:
             due.append(self._held.popleft())
         return due
 
-    def drain(self, loc: Localiser | None, generation: int, twin: Localiser | None = None) -> None:
+    def drain(self, loc: Localiser | None, generation: int, twin: Localiser | None = None,
+              shadow: Shadow | None = None) -> None:
         """Apply every finished worker result to the Localiser and the shadow twin (results of an older
-        generation are dropped), log each as a "fix" event and report the gate decision by STATUSTEXT."""
+        generation are dropped; the twin's outcomes go to `shadow`'s survey), log each as a "fix" event and report
+        the gate decision by STATUSTEXT."""
         if loc is None:
             return
         assert self.events is not None
@@ -332,7 +334,10 @@ class FixPipeline:
                 continue
             self.stats.fixes[out.reason] += 1
             if twin is not None:
-                self.stats.fixes[f"shadow_{twin_fix(twin, q.query_id, res.results)}"] += 1
+                twin_out = twin_fix(twin, q.query_id, res.results)
+                self.stats.fixes[f"shadow_{twin_out.reason if twin_out is not None else 'error'}"] += 1
+                if shadow is not None and twin_out is not None:
+                    shadow.answered(twin_out)
             self.last_weight = max(out.weights, default=0.0)  # the ground station's taco_w (gcs.py)
             est = loc.estimate()
             self.events.write(

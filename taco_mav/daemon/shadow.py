@@ -9,6 +9,11 @@ twin's distance to the receiver's latest fix (carried to the twin's time at the 
 ground station as NAMED_VALUE_FLOAT `taco_shad` (m) and to events.jsonl as `shadow` (t autopilot s, lat, lon of
 the twin, its h_acc_m, gnss_err_m); the session's last line says how it went (`summary`).
 
+The twin's camera answers also qualify the area (`taco_mav.daemon.survey`): each answer, accepted or not, is
+compared with the honest receiver at its frame's capture time (carried there at the fix's velocity, up to
+SURVEY_CARRY_S), and the session ends with a verdict for the whole drive and per stretch driven: "camera fixes
+usable here / not usable here" (`summary()["survey"]`, the `line()` and the `stop` event).
+
 The output always comes from the fused filter, so when the receiver goes nothing the autopilot sees jumps: the
 twin only measures. It costs a second filter's IMU work (measured in `taco-mav bench`, daemon keys).
 
@@ -23,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from taco_mav.core.frames import FixOutcome
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import GnssFix, MatchResult
+from taco_mav.daemon.survey import SurveyAnswer, stretches, verdict
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +40,7 @@ __all__ = ["SHADOW_NAME", "Shadow", "twin_fix"]
 SHADOW_NAME = "taco_shad"  # NAMED_VALUE_FLOAT name (10 characters at most)
 SHADOW_HZ = 1.0  # reports per second of autopilot time
 MAX_CARRY_S = 1.0  # a fix older than this (autopilot s) next to the twin's time is not compared
+SURVEY_CARRY_S = 3.0  # a camera answer is compared with a receiver fix at most this far (autopilot s) from it
 
 
 class Shadow:
@@ -42,6 +50,10 @@ class Shadow:
         self.twin: Localiser | None = None
         self.errors: list[float] = []
         self._next_t = -float("inf")  # autopilot s of the next report
+        self.answers: list[SurveyAnswer] = []  # the twin's camera answers, compared with the receiver
+        self._pending: list[FixOutcome] = []  # answers waiting for a receiver fix near their capture time
+        self._odo = 0.0  # metres the twin has driven (its estimate, sampled at each report)
+        self._last_xy: np.ndarray | None = None
 
     def due(self) -> bool:
         """True once per second of autopilot time (the twin's clock) while a twin runs."""
@@ -58,9 +70,16 @@ class Shadow:
         """The twin against an honest receiver's latest fix (None: no honest fix now): the `shadow` event's
         fields, or None when there is nothing to compare (no twin yet, the fix too far from the twin's time)."""
         twin = self.twin
-        if twin is None or fix is None:
+        if twin is None:
             return None
         est = twin.estimate()
+        if np.all(np.isfinite(est.xy)):
+            if self._last_xy is not None:
+                self._odo += float(np.hypot(*(np.asarray(est.xy) - self._last_xy)))
+            self._last_xy = np.asarray(est.xy, dtype=float)
+        self._survey(fix, est.t)
+        if fix is None:
+            return None
         dt = est.t - fix.t
         if abs(dt) > MAX_CARRY_S or not np.all(np.isfinite(est.xy)):
             return None
@@ -71,30 +90,54 @@ class Shadow:
         return {"t": float(est.t), "lat": float(lat), "lon": float(lon), "h_acc_m": float(est.sigma_h),
                 "gnss_err_m": err}
 
+    def answered(self, out: FixOutcome) -> None:
+        """The twin's outcome of one camera answer: judged against the receiver once one is near its capture."""
+        self._pending.append(out)
+
+    def _survey(self, fix: GnssFix | None, t: float) -> None:
+        """Compare the pending answers with `fix` (an honest receiver's latest, or None) where it is near their
+        capture; those left SURVEY_CARRY_S behind the twin's time `t` without one count with no comparison."""
+        keep = []
+        for out in self._pending:
+            err = float("nan")
+            if fix is not None and abs(out.capture_t - fix.t) <= SURVEY_CARRY_S:
+                if out.xy is not None and np.all(np.isfinite(out.xy)):
+                    at = fix.xy + (fix.vel_en * (out.capture_t - fix.t) if fix.vel_en is not None else 0.0)
+                    err = float(np.hypot(*(np.asarray(out.xy) - at)))
+            elif t - out.capture_t <= SURVEY_CARRY_S:
+                keep.append(out)
+                continue
+            self.answers.append(SurveyAnswer(out.capture_t, self._odo, out.accepted, err))
+        self._pending = keep
+
     def summary(self) -> dict[str, Any]:
-        """Reports, and the median / 95th percentile / largest of the twin's distance to the receiver, m."""
+        """Reports, and the median / 95th percentile / largest of the twin's distance to the receiver, m; the
+        survey of the camera's answers (whole drive and per stretch)."""
         e = np.array(self.errors)
+        survey = {"drive": verdict(self.answers).as_dict(),
+                  "stretches": [v.as_dict() for v in stretches(self.answers)]}
         if not len(e):
-            return {"reports": 0}
+            return {"reports": 0, "survey": survey}
         return {"reports": len(e), "gnss_err_median_m": float(np.median(e)),
-                "gnss_err_p95_m": float(np.percentile(e, 95)), "gnss_err_max_m": float(e.max())}
+                "gnss_err_p95_m": float(np.percentile(e, 95)), "gnss_err_max_m": float(e.max()), "survey": survey}
 
     def line(self) -> str:
-        """The session's summary line."""
+        """The session's summary line: the twin's distance to the receiver, then the survey's verdict."""
         s = self.summary()
+        survey = verdict(self.answers).line()
         if not s["reports"]:
-            return "shadow: no comparison (no honest GNSS while the twin ran)"
+            return f"shadow: no comparison (no honest GNSS while the twin ran); {survey}"
         return (f"shadow: without GNSS taco_mav would have been {s['gnss_err_median_m']:.2f} m from the receiver "
                 f"(median of {s['reports']} 1 Hz reports; 95 % within {s['gnss_err_p95_m']:.2f} m, largest "
-                f"{s['gnss_err_max_m']:.2f} m)")
+                f"{s['gnss_err_max_m']:.2f} m); {survey}")
 
 
-def twin_fix(twin: Localiser, query_id: int, results: Sequence[MatchResult | None]) -> str:
-    """The main filter's camera answer to the twin (its own gates decide); returns the outcome's reason. The
-    twin only measures, so an error in it is logged and never stops the loop."""
+def twin_fix(twin: Localiser, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome | None:
+    """The main filter's camera answer to the twin (its own gates decide); returns the outcome (None when the twin
+    failed on it). The twin only measures, so an error in it is logged and never stops the loop."""
     try:
-        return twin.add_fix(query_id, results).reason
+        return twin.add_fix(query_id, results)
     except Exception:  # noqa: BLE001
         log.exception("shadow twin: add_fix failed on query %d", query_id)
         twin.cancel_query(query_id)
-        return "error"
+        return None

@@ -3,13 +3,25 @@
 The loop is the daemon's, minus sockets: IMU samples in data-time order; when the trigger fires the matcher
 answers the query for the frame nearest the capture time, and the answer is handed back `latency_s` of data
 time later through the Localiser's delayed-fix path (or applied on arrival, per the profile).
+
+A drive's frames need not fall on the Localiser's frame times: a recording (`taco-mav run --record`) keeps frames
+at 5 Hz on the autopilot clock, up to 0.1 s (more where the recorder skipped a slot) from the 10 Hz capture times
+of the queries, where the live daemon's camera had a frame within one IMU period. The matcher places the vehicle
+where it was when its frame was taken, and the Localiser applies the answer at the capture time; so the query is
+asked as at the frame's time (`QueryFrames`): its crops moved by the vehicle's motion between the two times,
+which carries the answer back to the capture time. That motion is the camera's own (the ground motion between
+the frame and the drive's frame on the other side of the capture time, `cvgl.ground_motion`, taken as steady
+between them), else the Localiser's speed along its heading. A frame further than MAX_FRAME_GAP_S from the
+capture time (the recording stopped or skipped more) is none: the query is cancelled and asked again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,17 +34,23 @@ from taco_mav.core.preintegration import Preintegrator
 from taco_mav.core.smoother import SmoothResult
 from taco_mav.core.types import FixQuery
 from taco_mav.cvgl.base import GroundFrame
+from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion
 from taco_mav.cvgl.registry import make_matcher
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.cvgl.service import profile_service
 from taco_mav.datasets.base import Drive
-from taco_mav.errors import MatcherError
+from taco_mav.errors import DataError, MatcherError
 from taco_mav.evaluation.camera_motion import OfflineMotion
 from taco_mav.progress import progress_bar
 
 log = logging.getLogger(__name__)
 
 NEEDS_IMAGES = ("classical", "fg2")
+# Largest |frame time - capture time| of a frame a query is answered with, s: beyond it the turn between the two
+# times is no longer negligible in the query's move (a 5 Hz recording's frames are at most 0.1 s off, 0.2 s where
+# the recorder skipped a slot).
+MAX_FRAME_GAP_S = 0.5
+SAME_TIME_S = 1e-6  # a frame this close to the capture time is taken at it (the Localiser's own tolerance)
 
 
 @dataclass
@@ -69,21 +87,86 @@ def _cov3(cov: np.ndarray) -> tuple[float, float, float]:
     return float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
 
 
-def _frame_source(drive: Drive, matcher: str, camera: GroundCamera):
-    """A function capture_t -> GroundFrame for this drive and matcher (images only when the matcher needs them)."""
-    if matcher not in NEEDS_IMAGES:
-        empty = np.zeros((0, 0, 3), np.uint8)
-        return lambda t: GroundFrame(empty, t, camera)
-    times = np.asarray(drive.frame_times, dtype=float)
-    if times.size == 0:
-        raise MatcherError(f"drive {drive.name}: matcher '{matcher}' needs camera images and this drive has none "
-                           "(use --matcher emulator on image-less KITTI OXTS drives)")
+class QueryFrames:
+    """Which of a drive's frames answers a query, and the query as asked for it (module docstring). drive: its
+    frame_times (s, the IMU's clock), frame(i) images and IMU (the compass's turn between two times); camera: the
+    drive's ground camera; ego_rows: image rows showing the vehicle (profile `classical.ego_mask_rows`).
+    `counts`: how each query was answered ("at_capture", "camera_motion", "speed", "no_frame")."""
 
-    def frame_at(t: float) -> GroundFrame:
-        i = int(np.argmin(np.abs(times - t)))
-        return GroundFrame(drive.frame(i), t, camera)
+    def __init__(self, drive: Drive, camera: GroundCamera, ego_rows: int = 0) -> None:
+        self.drive, self.camera = drive, camera
+        self.times = np.asarray(drive.frame_times, dtype=float)
+        try:
+            self.motion: GroundMotion | None = GroundMotion(camera, ego_rows=ego_rows)
+        except ValueError as e:  # the camera sees too little ground ahead: the Localiser's speed moves the query
+            log.debug("drive %s: frames aligned by speed only (%s)", drive.name, e)
+            self.motion = None
+        self._imu_t = np.asarray(drive.imu.t, dtype=float)
+        self._yaw = np.unwrap(np.asarray(drive.imu.rpy_ned[:, 2], dtype=float))  # NED rad, CW
+        self.counts: Counter[str] = Counter()
 
-    return frame_at
+    def ask(self, q: FixQuery, speed: float) -> tuple[FixQuery, GroundFrame] | None:
+        """(the query as asked at its frame's time, the frame nearest its capture time, stamped with its own time),
+        or None when no frame is within MAX_FRAME_GAP_S. speed: the Localiser's forward speed at the capture time,
+        m/s (used where the camera cannot measure the motion)."""
+        i = int(np.argmin(np.abs(self.times - q.capture_t)))
+        t_f = float(self.times[i])
+        if not abs(t_f - q.capture_t) <= MAX_FRAME_GAP_S:
+            self.counts["no_frame"] += 1
+            return None
+        frame = GroundFrame(self.drive.frame(i), t_f, self.camera)
+        if abs(t_f - q.capture_t) < SAME_TIME_S:
+            self.counts["at_capture"] += 1
+            return q, frame
+        moved = self._camera_move(q, i, frame.image)
+        if moved is None:
+            self.counts["speed"] += 1
+            moved = float(speed) * (t_f - q.capture_t) * np.array([math.cos(q.heading), math.sin(q.heading)])
+            if not np.all(np.isfinite(moved)):
+                moved = np.zeros(2)
+        else:
+            self.counts["camera_motion"] += 1
+        return moved_query(q, moved), frame
+
+    def _theta(self, t: float, q: FixQuery) -> float:
+        """Compass heading at time t, ENU rad: the query's, turned as the IMU's yaw turned since its capture."""
+        yaw = np.interp([t, q.capture_t], self._imu_t, self._yaw)
+        return float(q.heading - (yaw[0] - yaw[1]))
+
+    def _camera_move(self, q: FixQuery, i: int, image: np.ndarray) -> np.ndarray | None:
+        """The vehicle's motion from the capture time to frame i's time, ENU metres, from the camera: the ground
+        motion between frame i and the frame on the other side of the capture time, at a steady velocity between
+        the two; None where there is no such frame or the camera measures nothing."""
+        t_f = float(self.times[i])
+        j = i + 1 if t_f < q.capture_t else i - 1
+        if self.motion is None or not 0 <= j < len(self.times):
+            return None
+        a, b = (i, j) if i < j else (j, i)
+        t_a, t_b = float(self.times[a]), float(self.times[b])
+        if not MIN_GAP_S * 0.5 <= t_b - t_a <= 2.0 * MAX_FRAME_GAP_S:
+            return None
+        other = self.drive.frame(j)
+        th_a, th_b = self._theta(t_a, q), self._theta(t_b, q)
+        try:
+            m = self.motion.measure(image if a == i else other, other if a == i else image, th_b - th_a)
+        except DataError:  # frames of another size than the camera model
+            return None
+        if m is None:
+            return None
+        c, s = math.cos(th_a), math.sin(th_a)
+        ab = np.array([c * m.d_fwd - s * m.d_left, s * m.d_fwd + c * m.d_left])  # frame a to frame b, ENU m
+        return ab * (t_f - q.capture_t) / (t_b - t_a)
+
+
+def moved_query(q: FixQuery, d: np.ndarray) -> FixQuery:
+    """The query with its search centre and crop centres moved by d (ENU metres, shape (2,)); heading and capture
+    time kept. Asked for a frame taken where the vehicle was d from its capture position, the matcher's answer
+    relative to the moved crops is the answer relative to the query's own crops at the capture position."""
+    d = np.asarray(d, dtype=float)
+    if not np.any(d):
+        return q
+    return dataclasses.replace(q, centre=np.asarray(q.centre, dtype=float) + d,
+                               crop_centres=np.asarray(q.crop_centres, dtype=float) + d)
 
 
 def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progress: bool = False,
@@ -100,7 +183,13 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         x, y, th = truth.pose_at(t)
         return origin[0] + x, origin[1] + y, th
 
-    frame_at = _frame_source(drive, profile.matcher, camera)
+    frames = None
+    if profile.matcher in NEEDS_IMAGES:
+        if len(drive.frame_times) == 0:
+            raise MatcherError(f"drive {drive.name}: matcher '{profile.matcher}' needs camera images and this drive "
+                               "has none (use --matcher emulator on image-less KITTI OXTS drives)")
+        frames = QueryFrames(drive, camera, profile.classical.ego_mask_rows)
+    empty = np.zeros((0, 0, 3), np.uint8)
     matcher = make_matcher(profile, truth_utm, cross_area=cross_area, camera=camera)
     if profile.matcher in NEEDS_IMAGES and sat_map is None:
         if drive.mosaic is None:
@@ -135,7 +224,12 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
             motion.tick(loc)
         q = loc.poll_query()
         if q is not None:
-            pending.append((q.capture_t + latency_s, q.query_id, service.answer(q, frame_at(q.capture_t))))
+            got = (q, GroundFrame(empty, q.capture_t, camera)) if frames is None else \
+                frames.ask(q, loc.filter_estimate().speed)
+            if got is None:  # no frame near its capture time (a recording that stopped): asked again later
+                loc.cancel_query(q.query_id)
+            else:
+                pending.append((q.capture_t + latency_s, q.query_id, service.answer(*got)))
         while pending and pending[0][0] <= sample.t + 1e-9:
             _, qid, results = pending.pop(0)
             loc.add_fix(qid, results)
@@ -157,5 +251,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
                "lock_events": loc.lock_events,
+               "query_frames": dict(frames.counts) if frames is not None else {},
                "camera_motion": dict(motion.counts) if motion is not None else {}},
     )

@@ -254,8 +254,11 @@ class PlusMode:
         finite = np.isfinite(xy).all(axis=1) & np.isfinite(psi) & np.isfinite(w) & (w > 0)
         with np.errstate(invalid="ignore"):
             yaw_ok = (np.abs(psi) <= p.gate.yaw_residual_max_rad) | (not p.gate.enabled)
-        strong = finite & yaw_ok & (w >= (qp.recover_w_min if self.lock.state is LockState.LOST else qp.w_min))
-        usable = strong & credible(results, p.answer)  # no better than the trigger's decoys: chance (answer_check)
+        lost = self.lock.state is LockState.LOST
+        strong = finite & yaw_ok & (w >= (qp.recover_w_min if lost else qp.w_min))
+        # while lock is lost no innovation gate stands between an answer and a relocalisation: the answer check
+        # does (answer_check.py); while locked the gate against the track does
+        usable = strong & credible(results, p.answer) if lost else strong
         c = consensus(np.nan_to_num(xy), w, usable, qp.consensus_radius_m, qp.consensus_weight_power)
         host.last_fix_t = max(host.last_fix_t, now if p.latency.apply_on_arrival else q.capture_t)
         if c is None:
@@ -264,7 +267,7 @@ class PlusMode:
             answers.failed(reason, 0.0, self.odo)
             return host.log(FixOutcome(query_id, False, reason, q.capture_t, now, weights=weights))
         k, z = c.index, c.xy
-        if not supported(xy, usable, k, q.crop_centres, p.answer):  # one or two crops of five: the crops' own
+        if lost and not supported(xy, k, q.crop_centres, p.answer):  # one or two crops of five: the crops' own
             answers.failed("at_chance", 0.0, self.odo)
             return host.log(FixOutcome(query_id, False, "at_chance", q.capture_t, now, k, z, psi[k], weights=weights))
         tick = host.capture_tick(q)
