@@ -459,7 +459,8 @@ def _finish(out: Path, gcs: Gcs, spec: MissionSpec, figures: dict[str, Any], aut
     figures.update(shadow_score(out / "daemon", spec))
     gcs.write_tlog(out / "gcs.tlog")
     figures["spec"] = asdict(spec)
-    figures["statustext"] = [t for _, _, t in gcs.texts if "taco" in t.lower() or "GPS" in t or "EKF" in t][-40:]
+    figures["statustext"] = [t for _, _, t in gcs.texts if ("taco" in t.lower() or "GPS" in t or "EKF" in t)
+                             and "fix rejected" not in t and "fix accepted" not in t][-40:]
     (out / "result.json").write_text(json.dumps(figures, indent=2, default=float))
     return figures
 
