@@ -52,7 +52,7 @@ def test_truth_is_the_receiver_never_our_echo(session: tuple[Path, Path, Simulat
 
 
 def test_eval_on_the_recording_scores_against_the_receiver(session: tuple[Path, Path, Simulator],
-                                                           tmp_path: Path) -> None:
+                                                           tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log_dir, world, _ = session
     out = tmp_path / "run"
     rc = main(["-q", "eval", "--tlog", str(log_dir / "mav.tlog"), "--frames", str(log_dir / "frames"), "--map",
@@ -64,6 +64,13 @@ def test_eval_on_the_recording_scores_against_the_receiver(session: tuple[Path, 
     fixes = [json.loads(line) for line in (out / log_dir.name / "fixes.jsonl").read_text().splitlines()]
     assert seq["ate_m"] <= 1.0, seq  # against a 0.2 m receiver (measured 0.31 m; dead reckoning 7.3 m)
     assert len(fixes) >= 3 and all(f["accepted"] for f in fixes)  # taco+ asks every 10 s: 40 s of drive
+    # the survey: each answer against the receiver, and the verdict printed (too few answers for a verdict in 40 s)
+    survey = seq["survey"]["drive"]
+    assert survey["answers"] == survey["accepted"] == len(fixes) and survey["precision"] == 1.0, survey
+    assert survey["median_error_m"] <= 1.0
+    assert survey["verdict"] == ("usable" if len(fixes) >= 5 else "too few answers")
+    assert f"camera fixes {survey['verdict'].replace('usable', 'usable here')}: {len(fixes)} of" in \
+        capsys.readouterr().out
     again = tmp_path / "again"
     assert main(["-q", "eval", "--tlog", str(log_dir / "mav.tlog"), "--frames", str(log_dir / "frames"), "--map",
                  str(world / "mosaic.tif"), "--profile", "synthetic", "--estimator", "taco+", "--matcher",

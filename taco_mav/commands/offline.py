@@ -129,7 +129,24 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(f"median ATE {s['median_ate_m']} m (IMU only {s['median_ate_imu_only_m']} m) over {s['sequences_run']} "
           f"sequence(s), estimator {profile.estimator.value}, matcher {profile.matcher}; results in "
           f"{Path(args.out) / 'results.json'}")
+    if recording is not None:  # a GNSS-on drive: the survey's verdict against its receiver
+        for name, seq in results["sequences"].items():
+            print(survey_text(name, seq.get("survey")))
     return 0
+
+
+def survey_text(name: str, survey: dict | None) -> str:
+    """The survey verdict of one evaluated drive as lines: the whole drive, then the stretches."""
+    if not survey:
+        return f"{name}: no survey"
+    d = survey["drive"]
+    lines = [f"{name}: camera fixes {d['verdict'].replace('usable', 'usable here')}: {d['accepted']} of "
+             f"{d['answers']} answers accepted, precision {d['precision']}, median error {d['median_error_m']} m "
+             "against the receiver"]
+    for st in survey["stretches"]:
+        lines.append(f"  {st['start_m']:7.0f}-{st['end_m']:<7.0f} m  {st['verdict']:16s} {st['accepted']:3d} of "
+                     f"{st['answers']:3d} accepted, precision {st['precision']}")
+    return "\n".join(lines)
 
 
 def cmd_drift(args: argparse.Namespace) -> int:

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from taco_mav.core.frames import FixOutcome
+from taco_mav.daemon.survey import SurveyAnswer, stretches, verdict
 from taco_mav.evaluation.metrics import (coverage, fix_errors, h_acc_from_var, path_length_m, position_errors, rmse,
                                          steady_state_rmse, track_errors)
 from taco_mav.evaluation.runner import DriveRun
@@ -67,9 +68,33 @@ def metrics(run: DriveRun) -> dict[str, Any]:
         "search_centre_error_median_m": _num(float(np.median(run.extra["search_centre_errors"])))
         if run.extra.get("search_centre_errors") else None,
         "matcher_s_per_100m": _num(run.matcher_s / (length_km * 10.0) if length_km > 0 else float("nan")),
+        "survey": survey(run),
         "duration_s": _num(float(run.t[-1] - run.t[0])),
         "wall_s": _num(run.wall_s),
     }
+
+
+def survey_answers(run: DriveRun) -> list[SurveyAnswer]:
+    """Every answered camera query as the survey sees it (daemon/survey.py): metres driven at its capture (along
+    the truth), whether it was accepted, and its position against the truth there (for a recording, the
+    receiver), m (nan without a position)."""
+    seg = np.r_[0.0, np.cumsum(np.hypot(*np.diff(run.truth_xy, axis=0).T))]
+    out = []
+    for o in run.outcomes:
+        odo = float(np.interp(o.capture_t, run.t, seg))
+        err = float("nan")
+        if o.xy is not None and np.all(np.isfinite(o.xy)):
+            tx = np.interp(o.capture_t, run.t, run.truth_xy[:, 0])
+            ty = np.interp(o.capture_t, run.t, run.truth_xy[:, 1])
+            err = float(np.hypot(o.xy[0] - tx, o.xy[1] - ty))
+        out.append(SurveyAnswer(float(o.capture_t), odo, bool(o.accepted), err))
+    return out
+
+
+def survey(run: DriveRun) -> dict[str, Any]:
+    """The survey verdict over the drive and per stretch (daemon/survey.py): are camera fixes usable here?"""
+    answers = survey_answers(run)
+    return {"drive": verdict(answers).as_dict(), "stretches": [v.as_dict() for v in stretches(answers)]}
 
 
 def error_directions(run: DriveRun, accepted: list[FixOutcome]) -> dict[str, float | None]:
