@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
@@ -90,10 +90,12 @@ class EchoCompanion:
                                    0.3, self.h_acc, 1.0, 10, 0)
 
 
-def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float = 0.1, fix: bool = True,
-               radio_delay_s: float = 0.02) -> Path:
+def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float | Sequence[float] = 0.1,
+               fix: bool = True, radio_delay_s: float = 0.02, gps_clock_s: float = 0.0) -> Path:
     """RAW_IMU and ATTITUDE at every sample, GPS_RAW_INT every `gps_every` samples (its receive time
-    `gps_latency_s` later than the IMU's); autopilot time BOOT + t, receive time UTC + t + radio_delay_s."""
+    `gps_latency_s` later than the IMU's: one value, or one per fix); autopilot time BOOT + t, receive time
+    UTC + t + radio_delay_s; the fixes' own time (time_usec) BOOT + t + gps_clock_s (another clock than the IMU's
+    when not 0)."""
     mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
     log = TlogWriter(path)
     for i in range(len(d)):
@@ -102,7 +104,8 @@ def write_tlog(path: Path, d: SimDrive, gps_every: int = 2, gps_latency_s: float
         log.write(encode.raw_imu(mav, d, i, T).pack(mav), rx)
         log.write(encode.attitude(mav, d, i, T).pack(mav), rx)
         if i % gps_every == 0:
-            log.write(encode.gps_raw_int(mav, d, i, T, fix=fix).pack(mav), rx + gps_latency_s)
+            lag = gps_latency_s if isinstance(gps_latency_s, (int, float)) else gps_latency_s[i // gps_every]
+            log.write(encode.gps_raw_int(mav, d, i, T + gps_clock_s, fix=fix).pack(mav), rx + float(lag))
     log.close()
     return path
 

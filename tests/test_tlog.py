@@ -12,7 +12,7 @@ import pytest
 from taco_mav.datasets.tlog import load_tlog
 from taco_mav.errors import DataError
 from taco_mav.reliability.soak import circle_drive
-from tests.sim_helpers import BOOT, write_tlog
+from tests.sim_helpers import BOOT, UTC, write_tlog
 
 
 def test_tlog_drive_matches_what_was_recorded(tmp_path: Path) -> None:
@@ -24,12 +24,34 @@ def test_tlog_drive_matches_what_was_recorded(tmp_path: Path) -> None:
     assert np.allclose(drive.imu.rpy_ned[:, 2], np.angle(np.exp(1j * d.rpy_ned[:, 2])), atol=1e-6)
     gi = np.arange(0, len(d), 2)
     assert len(drive.truth.t) == len(gi)
-    assert np.allclose(drive.truth.t, BOOT + d.t[gi] + 0.1, atol=1e-6)  # the fix's receive latency stays
+    assert np.allclose(drive.truth.t, BOOT + d.t[gi], atol=1e-6)  # its own time, not its receive time 0.1 s later
     assert np.allclose(drive.truth.xy, d.truth.xy[gi] - d.truth.xy[0], atol=0.03)  # degE7 is 1 cm
     err = np.angle(np.exp(1j * (drive.truth.heading - d.truth.heading[gi])))
     assert np.abs(err).max() < 1e-3  # course over ground, on the UTM grid
     assert drive.start.speed == pytest.approx(8.0, abs=0.01)
     assert drive.utm_epsg == d.utm_epsg and math.isfinite(drive.convergence_rad)
+
+
+def test_receiver_truth_keeps_its_own_time_whatever_the_link_did(tmp_path: Path) -> None:
+    """Each fix is stamped with its own time (time_usec, the IMU's clock), as the daemon stamps the receiver its
+    shadow twin is measured against: receive times that wander 0.05-0.35 s after the fix (a busy link and
+    companion) move the truth neither along the track nor in time. Stamped by receive time, the same fixes were
+    up to 0.35 s late: 2.8 m (1.75 m RMS) along an 8 m/s track from where the receiver put them."""
+    d = circle_drive(60.0, rate_hz=10.0, radius_m=150.0, speed_mps=8.0)
+    gi = np.arange(0, len(d), 2)
+    lags = np.random.default_rng(7).uniform(0.05, 0.35, len(gi))
+    drive = load_tlog(write_tlog(tmp_path / "busy.tlog", d, gps_latency_s=lags))
+    assert np.allclose(drive.truth.t, BOOT + d.t[gi], atol=1e-6)
+    at = np.column_stack([np.interp(drive.truth.t - BOOT, d.t, d.truth.xy[:, k]) for k in (0, 1)])
+    assert np.abs(drive.truth.xy - (at - d.truth.xy[0])).max() < 0.03  # degE7 is 1 cm
+
+
+def test_receiver_on_another_clock_is_stamped_by_its_receive_time(tmp_path: Path) -> None:
+    """An autopilot whose fixes carry another clock (here UNIX time) than its IMU: each fix takes its receive time
+    on the IMU's clock (the median offset between IMU and receive time), its latency included."""
+    d = circle_drive(30.0, rate_hz=10.0)
+    drive = load_tlog(write_tlog(tmp_path / "unix.tlog", d, gps_latency_s=0.1, gps_clock_s=UTC - BOOT))
+    assert np.allclose(drive.truth.t, BOOT + d.t[::2] + 0.1, atol=1e-6)
 
 
 def test_tlog_errors_name_the_problem(tmp_path: Path) -> None:

@@ -10,9 +10,13 @@ dead-reckoning drift (`taco-mav drift --tlog`).
   echoes our own GPS_INPUT (set-up A, or a daemon on GPS1): an instance most of whose fixes repeat a GPS_INPUT
   position of the same tlog is an echo, never truth. Projected to the UTM zone of the first fix (ENU metres
   relative to it); heading = the GNSS course over ground (grid ENU radians) while faster than `course_min_speed_mps`,
-  else the compass's. GNSS stamps are put on the autopilot clock by the tlog's receive times: the median
-  offset between IMU time and receive time is added to each fix's receive time, so a fix carries the
-  receiver's latency (typically 0.1-0.2 s).
+  else the compass's. Each fix is stamped with its own time (the message's time_usec: ArduPilot's time of the
+  fix on its boot clock, the IMU's), as the daemon stamps the receiver it fuses and the one its shadow twin is
+  measured against (`daemon.gnss`). Where that is not on the IMU's clock (more than MAX_TIME_SKEW_S from the
+  fix's receive time carried onto it by the median offset between IMU time and receive time: an autopilot that
+  sends another clock), the fix takes that receive time instead. Receive times would not do for every fix: they
+  wander with the link and the companion's load (in the in-process simulator, 0.05 s RMS: 0.4 m along the track
+  at 8 m/s), and trail the fix by the stream's phase.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.core.preintegration import enu_heading  # noqa: E402
+from taco_mav.daemon.gnss import MAX_TIME_SKEW_S  # noqa: E402
 from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix  # noqa: E402
 from taco_mav.errors import DataError  # noqa: E402
 from taco_mav.geo import UtmProjector, utm_epsg_for, wrap_angle  # noqa: E402
@@ -81,8 +86,9 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     dec = Decoders()
     imu: dict[str, list] = {}
     att: list[AttitudeReading] = []
-    gps: dict[str, list[tuple[float, float, float, float, float, float | None]]] = {"GPS_RAW_INT": [],
-                                                                                      "GPS2_RAW": []}
+    # per receiver message: (receive time, lat, lon, alt, speed, course_ned, own time (time_usec) s)
+    gps: dict[str, list[tuple[float, float, float, float, float, float | None, float]]] = {"GPS_RAW_INT": [],
+                                                                                             "GPS2_RAW": []}
     ours: set[tuple[int, int]] = set()  # (lat, lon) degE7 of every GPS_INPUT we sent
     raw: dict[str, list[tuple[int, int]]] = {"GPS_RAW_INT": [], "GPS2_RAW": []}
     offsets: list[float] = []
@@ -108,7 +114,7 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                 g = dec.gnss(msg)
                 if g is not None:
                     gps[kind].append((float(getattr(msg, "_timestamp", 0.0)), g.lat, g.lon, g.alt, g.speed,
-                                      g.course_ned))
+                                      g.course_ned, g.t))
                     raw[kind].append((int(msg.lat), int(msg.lon)))
             elif kind == "GPS_INPUT":
                 ours.add((int(msg.lat), int(msg.lon)))
@@ -140,12 +146,11 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     rpy = np.array([(c.roll, c.pitch, c.yaw) for c in (att[k].at(ti) for k, ti in zip(j, t))])  # as the daemon
     offset = float(np.median(offsets))
 
-    G = sorted(gps[receiver])
+    G, tg = _fix_times(gps[receiver], offset)
     lat0, lon0, alt0 = G[0][1], G[0][2], G[0][3]
     proj = UtmProjector(utm_epsg_for(lat0, lon0))
     e0, n0 = proj.to_utm(lat0, lon0)
     conv = float(proj.grid_convergence(lat0, lon0))
-    tg = np.array([g[0] for g in G]) + offset
     e, n = proj.to_utm(np.array([g[1] for g in G]), np.array([g[2] for g in G]))
     xy = np.column_stack([np.atleast_1d(e) - e0, np.atleast_1d(n) - n0])
     compass = np.array([enu_heading(float(y)) for y in np.interp(tg, t, np.unwrap(rpy[:, 2]))]) + conv
@@ -159,3 +164,15 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                      start=start, utm_epsg=proj.epsg, origin_utm=np.array([e0, n0]),
                      convergence_rad=conv if math.isfinite(conv) else 0.0, rejected=dict(dec.rejected),
                      receiver=receiver, t0_unix=float(t[0] - offset))
+
+
+def _fix_times(fixes: list[tuple[float, float, float, float, float, float | None, float]], offset: float
+               ) -> tuple[list[tuple[float, float, float, float, float, float | None, float]], np.ndarray]:
+    """The receiver's fixes (receive time s, lat, lon, alt, speed, course, own time s) in time order with their
+    times on the autopilot clock, s: each its own time, or its receive time + offset (autopilot minus receive time,
+    s) where the two are more than MAX_TIME_SKEW_S apart (module docstring). A fix repeating an earlier one's time
+    is dropped."""
+    stamped = sorted(((f[6] if abs(f[6] - (f[0] + offset)) <= MAX_TIME_SKEW_S else f[0] + offset, f)
+                      for f in fixes), key=lambda p: p[0])
+    kept = [p for k, p in enumerate(stamped) if k == 0 or p[0] > stamped[k - 1][0]]
+    return [f for _, f in kept], np.array([t for t, _ in kept])
