@@ -255,7 +255,7 @@ class Daemon:
                 self.stats.dropped["handler_error"] += 1
         self.outputs.tick(self.clock())  # a due output goes before the fixes' replays and the camera's speed
         loc, generation, twin = self.state.loc, self.state.anchor.generation, self.state.twin
-        self.fixes.drain(loc, generation, twin, self.state.shadow)
+        self.fixes.drain(loc, generation, self.state.shadow)
         self.fixes.poll(loc, generation, twin)
         if self.motion is not None:
             self.motion.tick(self.state.loc, twin)

@@ -8,7 +8,7 @@ queries carry autopilot seconds; a companion-clock camera is mapped through the 
     fixes = FixPipeline(profile, options, clockmap, stats, status)
     fixes.open(events); ...; fixes.start()      # camera grabbing; the worker starts with the origin
     fixes.on_origin(origin)                     # FixService on the origin's UTM zone, worker thread
-    fixes.drain(loc, generation); fixes.poll(loc, generation)   # every loop step
+    fixes.drain(loc, generation, shadow); fixes.poll(loc, generation)   # every loop step
     fixes.stop(); ...; fixes.close()
 
 Faults: every query that yields no fix is cancelled in the Localiser (so it can ask again) and counted in
@@ -299,11 +299,9 @@ class FixPipeline:
             due.append(self._held.popleft())
         return due
 
-    def drain(self, loc: Localiser | None, generation: int, twin: Localiser | None = None,
-              shadow: Shadow | None = None) -> None:
-        """Apply every finished worker result to the Localiser and the shadow twin (results of an older
-        generation are dropped; the twin's outcomes go to `shadow`'s survey), log each as a "fix" event and report
-        the gate decision by STATUSTEXT."""
+    def drain(self, loc: Localiser | None, generation: int, shadow: Shadow | None = None) -> None:
+        """Apply finished results (not an older generation's) to the Localiser and the shadow; event, STATUSTEXT."""
+        twin = shadow.twin if shadow is not None else None
         if loc is None:
             return
         assert self.events is not None
@@ -334,17 +332,15 @@ class FixPipeline:
                 continue
             self.stats.fixes[out.reason] += 1
             if twin is not None:
-                twin_out = twin_fix(twin, q.query_id, res.results)
-                self.stats.fixes[f"shadow_{twin_out.reason if twin_out is not None else 'error'}"] += 1
-                if shadow is not None and twin_out is not None:
-                    shadow.answered(twin_out)
+                self.stats.fixes[f"shadow_{twin_fix(twin, q.query_id, res.results, shadow)}"] += 1
             self.last_weight = max(out.weights, default=0.0)  # the ground station's taco_w (gcs.py)
             est = loc.estimate()
             self.events.write(
                 "fix", query_id=q.query_id, reason=q.reason, capture_t=q.capture_t, frame_t=res.frame_t,
                 arrival_t=out.arrival_t, epsilon=q.epsilon, heading=q.heading, centre=q.centre,
                 crop_centres=q.crop_centres,
-                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w, "null_w": r.null_w} for r in res.results],
+                results=[None if r is None else {"R": r.R, "t": r.t, "w": r.w, "null_w": r.null_w}
+                         for r in res.results],
                 accepted=out.accepted, gate=out.reason, chosen=out.chosen, xy=out.xy, yaw_residual=out.yaw_residual,
                 sigma_fwd=out.sigma_fwd, sigma_lat=out.sigma_lat, nis=out.nis, matcher_s=res.elapsed_s,
                 estimate_xy=est.xy, sigma_h=est.sigma_h)

@@ -132,12 +132,16 @@ class Shadow:
                 f"{s['gnss_err_max_m']:.2f} m); {survey}")
 
 
-def twin_fix(twin: Localiser, query_id: int, results: Sequence[MatchResult | None]) -> FixOutcome | None:
-    """The main filter's camera answer to the twin (its own gates decide); returns the outcome (None when the twin
-    failed on it). The twin only measures, so an error in it is logged and never stops the loop."""
+def twin_fix(twin: Localiser, query_id: int, results: Sequence[MatchResult | None], shadow: Shadow | None = None
+             ) -> str:
+    """The main filter's camera answer to the twin (its own gates decide; the outcome goes to `shadow`'s survey);
+    returns the outcome's reason. The twin only measures, so an error in it is logged and never stops the loop."""
     try:
-        return twin.add_fix(query_id, results)
+        out = twin.add_fix(query_id, results)
     except Exception:  # noqa: BLE001
         log.exception("shadow twin: add_fix failed on query %d", query_id)
         twin.cancel_query(query_id)
-        return None
+        return "error"
+    if shadow is not None:
+        shadow.answered(out)
+    return out.reason
