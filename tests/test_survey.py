@@ -10,7 +10,8 @@ from taco_mav.daemon.survey import SurveyAnswer, stretches, verdict
 
 
 def answers(odo: np.ndarray, accepted: np.ndarray, error: np.ndarray) -> list[SurveyAnswer]:
-    return [SurveyAnswer(float(i), float(o), bool(a), float(e)) for i, (o, a, e) in enumerate(zip(odo, accepted, error))]
+    rows = enumerate(zip(odo, accepted, error))
+    return [SurveyAnswer(float(i), float(o), bool(a), float(e)) for i, (o, a, e) in rows]
 
 
 def test_a_camera_that_fixes_often_and_right_is_usable() -> None:

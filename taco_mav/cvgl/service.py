@@ -188,8 +188,8 @@ class FixService:
         centres = np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
         batches = [self._cut_on_device(dataclasses.replace(query, crop_centres=centres[:n_own]), query.heading)]
         for k, turn in enumerate(self.decoy_turns):
-            batches.append(self._cut_on_device(dataclasses.replace(query, crop_centres=centres[n_own + k:n_own + k + 1]),
-                                               query.heading + turn))
+            one = dataclasses.replace(query, crop_centres=centres[n_own + k:n_own + k + 1])
+            batches.append(self._cut_on_device(one, query.heading + turn))
         t1 = time.perf_counter()
         matcher: Any = self.matcher
         present: list[bool] = []
