@@ -79,6 +79,21 @@ def build_parser() -> argparse.ArgumentParser:
     _force(p, "the world")
     p.set_defaults(func=offline.cmd_world)
 
+    p = sub.add_parser("map", parents=[common], help="the satellite map (a UTM GeoTIFF) of an area from an XYZ, "
+                       "WMTS or WMS imagery service, through GDAL, with a tile cache")
+    p.add_argument("--bbox", required=True, metavar="LAT0,LON0,LAT1,LON1", help="two opposite corners, degrees")
+    p.add_argument("--source", required=True, help="https://host/{z}/{x}/{y}.png ({-y}: TMS rows) | "
+                   "WMTS:CAPABILITIES_URL[,layer=NAME][,tilematrixset=TMS] | WMS:URL?LAYERS=NAME[&CRS=EPSG:3857]")
+    p.add_argument("--out", required=True, help="the GeoTIFF to write (refused if it exists, unless --force)")
+    p.add_argument("--zoom", type=int, help="XYZ zoom (WMTS: zoom level) to read (default: the one --m-per-px needs)")
+    p.add_argument("--m-per-px", type=float, help="output resolution, metres per pixel (default: the source's)")
+    p.add_argument("--cache", help="tile cache folder, reused by a re-run (default ~/.cache/taco_mav/tiles)")
+    p.add_argument("--connections", type=int, default=2, help="parallel requests at most (default 2)")
+    p.add_argument("--user-agent", help="the HTTP User-Agent (default taco-mav/VERSION ...)")
+    p.add_argument("--timeout", type=float, default=30.0, help="seconds per request (default 30)")
+    _force(p, "the map")
+    p.set_defaults(func=offline.cmd_map)
+
     p = sub.add_parser("eval", parents=[common], help="offline evaluation on KITTI sequences or drives")
     p.add_argument("--kitti-root", help="KITTI raw root (with --sequences)")
     p.add_argument("--sequences", help="odometry sequence ids, e.g. 04,05")

@@ -48,6 +48,17 @@ class OffMapError(MapError):
         self.valid_fraction = valid_fraction
 
 
+class MapSourceError(MapError):
+    """A map service (XYZ tiles, WMTS, WMS) cannot be read: unreachable, refusing (HTTP 401/403), failing, or with
+    no imagery in the area; `url` names the tile or the service, `status` the HTTP status (0: no answer, None:
+    unknown). Exit code 1."""
+
+    def __init__(self, message: str, url: str = "", status: int | None = None) -> None:
+        super().__init__(message)
+        self.url = url
+        self.status = status
+
+
 class MatcherError(TacoError):
     """A matcher cannot run (missing checkpoint, missing images, wrong input shape)."""
 

@@ -1,4 +1,4 @@
-"""`taco-mav` commands that work on files: bench, world, eval, drift, calibrate. Each checks its arguments and
+"""`taco-mav` commands that work on files: bench, world, map, eval, drift, calibrate. Each checks its arguments and
 inputs (`taco_mav.checks`) before the first expensive step, then calls one importable function."""
 
 from __future__ import annotations
@@ -83,6 +83,28 @@ def cmd_world(args: argparse.Namespace) -> int:
                        imu_preset=args.imu, progress=show_progress(args), realism=realism, keep_clear=keep_clear)
     profile = "synthetic_3d --estimator taco+" if realism == "3d" else "synthetic"
     print(f"wrote world {path} ({realism}; run it with --profile {profile})")
+    return 0
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    from taco_mav.datasets.map_sources import DEFAULT_USER_AGENT, BBox, parse_source
+    from taco_mav.datasets.map_tiles import build_map, check_request
+
+    bbox = BBox.parse(args.bbox)
+    source = parse_source(args.source)
+    check_request(source, args.m_per_px, args.zoom, args.connections)
+    checks.number(args.timeout, "--timeout", 1.0, 600.0)
+    out = checks.output_file(args.out)
+    if out.exists() and not args.force:
+        raise UsageError(f"--out {out}: exists; add --force to overwrite it or choose another file")
+    cache = checks.output_dir(args.cache, "--cache") if args.cache else None
+    res = build_map(bbox, source, out, m_per_px=args.m_per_px, zoom=args.zoom, cache_dir=cache,
+                    connections=args.connections, user_agent=args.user_agent or DEFAULT_USER_AGENT,
+                    timeout_s=args.timeout, progress=show_progress(args))
+    zone = f"UTM {res.epsg % 100}{'N' if res.epsg < 32700 else 'S'}"
+    zoom = f", zoom {res.zoom}" if res.zoom is not None else ""
+    print(f"wrote {res.path}: {res.width} x {res.height} px at {res.m_per_px:g} m/px, EPSG:{res.epsg} ({zone}){zoom}, "
+          f"imagery on {100 * res.imagery_fraction:.1f} % (tiles cached in {res.cache_dir})")
     return 0
 
 
