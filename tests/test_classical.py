@@ -222,3 +222,28 @@ def test_the_correlation_is_the_circular_cross_correlation_over_the_searched_shi
     score = matcher._corr(_spectra(shifted), _spectra(t))
     iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
     assert (matcher._sy[0] + iy, matcher._sx[0] + ix) == (dy, dx)
+
+
+def test_a_short_range_template_smaller_than_the_crop_still_matches(world) -> None:
+    """max_range_m 15 m: the template is much smaller than the crop, every searched shift starts inside it, and the
+    FFT must still hold the whole crop (before issue 38 this raised a broadcast error)."""
+    renderer, smap, _ = world
+    matcher = ClassicalMatcher(ClassicalMatcherConfig(max_range_m=15.0), renderer.camera)
+    true_en = np.array([WEST + 150.0, NORTH - 140.0])
+    theta = math.radians(63.0)
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], theta)), 0.0, renderer.camera)
+    (res,) = matcher.match(frame, [_crop_at(smap, true_en, theta, 6.0, -4.0)])
+    assert np.hypot(*(res.t - [6.0, -4.0])) < 1.0, res.t
+
+
+def test_the_unsaturated_channel_matches_a_colour_world_and_an_unknown_channel_is_refused(world) -> None:
+    renderer, smap, _ = world
+    matcher = ClassicalMatcher(ClassicalMatcherConfig(grey="unsaturated"), renderer.camera)
+    true_en = np.array([WEST + 150.0, NORTH - 140.0])
+    theta = math.radians(63.0)
+    frame = GroundFrame(renderer.render((true_en[0], true_en[1], theta)), 0.0, renderer.camera)
+    (res,) = matcher.match(frame, [_crop_at(smap, true_en, theta, 6.0, -4.0)])
+    assert np.hypot(*(res.t - [6.0, -4.0])) < 1.0, res.t
+    with pytest.raises(MatcherError, match="classical.grey"):
+        ClassicalMatcher(ClassicalMatcherConfig(grey="hue"), renderer.camera).match(
+            frame, [_crop_at(smap, true_en, theta, 6.0, -4.0)])

@@ -23,6 +23,7 @@ from taco_mav.cvgl.masks import (
     _gradient_bands,
     horizon_row,
     image_mask,
+    vegetation_mask,
     vertical_structure_mask,
 )
 from taco_mav.datasets.synthetic.render import GroundRenderer
@@ -190,3 +191,22 @@ def test_the_mask_by_bands_is_the_whole_frame_mask_bit_for_bit(scene) -> None:
         np.testing.assert_array_equal(got, _whole_image_mask(img, cam))
         masked += got.mean() > 0.01
     assert masked >= 4  # the occluded frames and the KITTI frames with structure: not all-clear comparisons
+
+
+def test_standing_vegetation_is_masked_from_its_foot_up_and_a_lawn_is_not(scene) -> None:
+    """A green blob that reaches above the horizon (a tree) is masked from its lowest pixel up in its columns; a
+    green patch below the horizon (a lawn) and a grey frame are not; off by default."""
+    cam, frames = scene
+    img = np.full_like(frames[0], 110)
+    vh = int(np.ceil(horizon_row(cam)))
+    H, W = img.shape[:2]
+    img[vh - 40:vh + 30, 100:160] = (40, 140, 40)  # a tree whose foot is 30 rows below the horizon
+    img[H - 60:H - 20, 600:800] = (60, 150, 50)  # a lawn
+    opts = MaskOptions(vegetation=True)
+    m = vegetation_mask(img, cam, opts)
+    assert m[: vh + 28, 104:156].all()  # the tree and everything above its foot in its columns
+    assert not m[vh + 40:, 104:156].any()  # ground nearer than its foot
+    assert not m[H - 60:, 600:800].any()  # the lawn lies on the ground
+    assert not vegetation_mask(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), cam, opts).any()
+    assert image_mask(img, cam, MaskOptions(vertical=False)) is None
+    assert image_mask(img, cam, MaskOptions(vertical=False, vegetation=True))[vh, 120]

@@ -78,7 +78,13 @@ class ClassicalMatcherConfig:
     # (poles, cars, facades: long image-vertical edges, masked from their foot up) and the bottom image rows the
     # ego vehicle hides (its bonnet; 0 for KITTI's camera). taco+'s camera speed (cvgl/ground_motion.py) places its
     # ground band above those rows as well.
+    # The channel described (classical.py _to_grey): "luma" (brightness) or "unsaturated" (255 - saturation).
+    grey: str = "luma"
     mask_vertical: bool = True
+    # Standing vegetation (trees, hedges: green regions that reach the horizon) masked by colour, from their foot
+    # up (taco_mav/cvgl/masks.py vegetation_mask); exg_min its least excess-green index. Off by default (issue 38).
+    mask_vegetation: bool = False
+    vegetation_exg_min: float = field(default=0.05, metadata=bounded(-1.0, 2.0))
     ego_mask_rows: int = field(default=0, metadata=bounded(0))
     # w = 1 / (1 + exp(-(PSR - psr_at_half_weight) / psr_logistic_scale)); None: the descriptor's own calibration
     # (taco_mav/cvgl/classical.py W_CALIBRATION has the measurements; w is set so that the fix noise it implies,

@@ -99,6 +99,17 @@ def _spectra(planes: np.ndarray) -> np.ndarray:
     return np.stack([cv2.dft(p) for p in planes])
 
 
+def _to_grey(rgb: np.ndarray, mode: str) -> np.ndarray:
+    """The one channel the matcher describes, uint8 (H, W), of an RGB image: "luma" (brightness) or
+    "unsaturated" (255 - HSV saturation: asphalt, concrete and kerbs bright, grass, foliage, soil and red roofs
+    dark; a material's colourfulness, which changes less between days than its brightness)."""
+    if mode == "luma":
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    if mode == "unsaturated":
+        return 255 - cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)[..., 1]
+    raise MatcherError(f"classical matcher: grey {mode!r} is not one of luma, unsaturated (profile key classical.grey)")
+
+
 def _parabola(ym: float, y0: float, yp: float) -> float:
     """Vertex offset in (-0.5, 0.5) of the parabola through (-1, ym), (0, y0), (1, yp)."""
     den = ym - 2.0 * y0 + yp
@@ -121,7 +132,9 @@ class ClassicalMatcher:
         if self.descriptor not in DESCRIPTORS:
             raise MatcherError(f"classical matcher: descriptor {self.descriptor!r} is not one of "
                                f"{', '.join(DESCRIPTORS)} (profile key classical.descriptor)")
-        self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows) if masks is None else masks
+        self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows,
+                                 vegetation=cfg.mask_vegetation,
+                                 exg_min=cfg.vegetation_exg_min) if masks is None else masks
         mid, scale = W_CALIBRATION[self.descriptor]
         self.psr_at_half_weight = mid if cfg.psr_at_half_weight is None else cfg.psr_at_half_weight
         self.psr_logistic_scale = scale if cfg.psr_logistic_scale is None else cfg.psr_logistic_scale
@@ -184,8 +197,10 @@ class ClassicalMatcher:
         # template top-left shift s: vehicle crop pixel = s + (u0, v0); vehicle within c +- r.
         self._sx = (int(math.ceil(c - r - u0)), int(math.floor(c + r - u0)))
         self._sy = (int(math.ceil(c - r - v0)), int(math.floor(c + r - v0)))
-        ny = cv2.getOptimalDFTSize(max(self._sy[1] + h, crop_px - self._sy[0]))
-        nx = cv2.getOptimalDFTSize(max(self._sx[1] + w, crop_px - self._sx[0]))
+        # the crop must fit as well: a template much smaller than the crop (a short max_range_m) searches
+        # shifts that all start inside it (sx[0] > 0), and crop_px - sx[0] alone is then narrower than the crop
+        ny = cv2.getOptimalDFTSize(max(self._sy[1] + h, crop_px - self._sy[0], crop_px))
+        nx = cv2.getOptimalDFTSize(max(self._sx[1] + w, crop_px - self._sx[0], crop_px))
         self._fft_shape = (ny, nx)
         self._crop_px = crop_px
         self._mask_fc = self._mask_spectrum(self._mask)
@@ -248,7 +263,7 @@ class ClassicalMatcher:
         and the FFT is set up for that size."""
         img = crop.image
         S = img.shape[0]
-        grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        grey = _to_grey(img, self.cfg.grey)
         valid = (img.max(axis=2) > 0) if crop.valid_fraction < 1.0 else None
         if Sw != S:
             grey = cv2.resize(grey, (Sw, Sw), interpolation=cv2.INTER_AREA)
@@ -289,7 +304,7 @@ class ClassicalMatcher:
         if not crops:
             return []
         image = frame.image
-        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+        grey = _to_grey(image, self.cfg.grey) if image.ndim == 3 else image
         bev, _ = self._bev.project(grey)
         view = self._base
         hidden = image_mask(image, self.camera, self.masks)

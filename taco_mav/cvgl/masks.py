@@ -34,7 +34,7 @@ import numpy as np
 
 from taco_mav.camera.geometry import GroundCamera
 
-__all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "image_mask"]
+__all__ = ["MaskOptions", "horizon_row", "vertical_structure_mask", "vegetation_mask", "image_mask"]
 
 # `_gradient_bands`'s bands: rows per band, and the rows read beyond each side (blur radius 2 + Sobel radius 1).
 _BAND_ROWS = 64
@@ -49,7 +49,9 @@ class MaskOptions:
     edges of a third of that; fill_frac, foot_tol_frac: the columns between two object
     columns at most fill_frac of the image width apart whose feet are within foot_tol_frac of the image height
     (one object's edges) are masked down to the higher foot (its face); dilate_px: final growth; min_view_fraction: a
-    trigger whose masks leave less than this share of the unmasked template gives no answer (w at its floor)."""
+    trigger whose masks leave less than this share of the unmasked template gives no answer (w at its floor);
+    vegetation: find and mask standing vegetation by colour (`vegetation_mask`), exg_min its least excess-green
+    index, vegetation_tall_only: only vegetation that reaches the horizon (trees, hedges; not lawns and verges)."""
 
     vertical: bool = True
     ego_rows: int = 0
@@ -60,6 +62,9 @@ class MaskOptions:
     foot_tol_frac: float = 0.04
     dilate_px: int = 3
     min_view_fraction: float = 0.25
+    vegetation: bool = False
+    exg_min: float = 0.05
+    vegetation_tall_only: bool = True
 
 
 def horizon_row(camera: GroundCamera) -> float:
@@ -155,9 +160,47 @@ def _fill_between(foot: np.ndarray, max_gap: int, tol: float) -> np.ndarray:
     return foot
 
 
+def vegetation_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions = MaskOptions()) -> np.ndarray:
+    """bool (H, W): standing vegetation found by colour, True = not ground. A pixel is green where its excess-green
+    index 2g - r - b of chromaticities (r + g + b = 1) is at least `exg_min` (a 3x3 opening drops single pixels).
+    With `vegetation_tall_only`, only green regions that reach above the horizon row are kept (trees and hedges
+    stand up from the ground, a lawn or a verge lies on it and is ground the map shows), and each is masked as a
+    stixel, from its lowest pixel per column up (what is above a tree's foot in its column is tree or beyond it).
+    A grey image has no colour: nothing is masked."""
+    H, W = image.shape[:2]
+    if image.ndim != 3:
+        return np.zeros((H, W), bool)
+    f = image.astype(np.float32)
+    tot = f.sum(axis=2) + 1.0
+    exg = (2.0 * f[..., 1] - f[..., 0] - f[..., 2]) / tot
+    green = ((exg >= opts.exg_min) & (tot > 30.0)).astype(np.uint8)
+    green = cv2.morphologyEx(green, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    if not opts.vegetation_tall_only:
+        return green.astype(bool)
+    n, labels = cv2.connectedComponents(green, connectivity=8)
+    if n <= 1:
+        return np.zeros((H, W), bool)
+    vh = max(0, int(math.floor(horizon_row(camera))))
+    top = labels[: min(H, vh + 1)]
+    keep = np.zeros(n, bool)
+    keep[np.unique(top)] = True
+    keep[0] = False
+    tall = keep[labels]
+    has = tall.any(axis=0)
+    foot = np.where(has, H - 1 - np.argmax(tall[::-1], axis=0), -1)
+    out = (np.arange(H)[:, None] <= foot[None, :]).astype(np.uint8)
+    if opts.dilate_px > 0:
+        d = 2 * opts.dilate_px + 1
+        out = cv2.dilate(out, np.ones((d, d), np.uint8))
+    return out.astype(bool)
+
+
 def image_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions = MaskOptions()) -> np.ndarray | None:
     """bool (H, W) of the pixels IPM must not use (vertical structure, ego vehicle), or None when none are."""
     m = vertical_structure_mask(image, camera, opts) if opts.vertical else None
+    if opts.vegetation:
+        v = vegetation_mask(image, camera, opts)
+        m = v if m is None else (m | v)
     if opts.ego_rows > 0:
         m = np.zeros(image.shape[:2], bool) if m is None else m
         m[-int(opts.ego_rows):] = True
