@@ -74,12 +74,12 @@ class ClassicalMatcherConfig:
     # which material is brighter) or "lcn" (grey-level local contrast normalisation, the matcher before issue 17).
     # docs/matchers.md compares them on flat worlds with and without an appearance gap.
     descriptor: str = "orientation"
+    # The channel described (classical.py _to_grey): "luma" (brightness) or "unsaturated" (255 - saturation).
+    grey: str = "luma"
     # Masks for what inverse perspective mapping cannot represent (taco_mav/cvgl/masks.py): vertical structure
     # (poles, cars, facades: long image-vertical edges, masked from their foot up) and the bottom image rows the
     # ego vehicle hides (its bonnet; 0 for KITTI's camera). taco+'s camera speed (cvgl/ground_motion.py) places its
     # ground band above those rows as well.
-    # The channel described (classical.py _to_grey): "luma" (brightness) or "unsaturated" (255 - saturation).
-    grey: str = "luma"
     mask_vertical: bool = True
     # Standing vegetation (trees, hedges: green regions that reach the horizon) masked by colour, from their foot
     # up (taco_mav/cvgl/masks.py vegetation_mask); exg_min its least excess-green index. Off by default (issue 38).
