@@ -199,7 +199,7 @@ def test_standing_vegetation_is_masked_from_its_foot_up_and_a_lawn_is_not(scene)
     cam, frames = scene
     img = np.full_like(frames[0], 110)
     vh = int(np.ceil(horizon_row(cam)))
-    H, W = img.shape[:2]
+    H = img.shape[0]
     img[vh - 40:vh + 30, 100:160] = (40, 140, 40)  # a tree whose foot is 30 rows below the horizon
     img[H - 60:H - 20, 600:800] = (60, 150, 50)  # a lawn
     opts = MaskOptions(vegetation=True)
