@@ -173,9 +173,11 @@ class Spy:
 
 
 def answers(matcher: Fg2Matcher, sat: SatelliteMap, frame: GroundFrame, heading: float,
-            offsets: np.ndarray, size: int) -> tuple[list, Spy, FixService]:
+            offsets: np.ndarray, size: int, decoys: int = 0) -> tuple[list, Spy, FixService]:
     spy = Spy(matcher)
-    service = FixService(spy, sat, CENTRE, crop_size_px=size, m_per_px=0.8)  # type: ignore[arg-type]
+    # decoys: every decoy answer counts (no yaw gate; apart by any distance), so the chance level is their best w
+    service = FixService(spy, sat, CENTRE, crop_size_px=size, m_per_px=0.8, decoys=decoys,  # type: ignore[arg-type]
+                         yaw_gate_rad=None, decoy_apart_m=1e-6)
     query = FixQuery(1, 1.0, np.zeros(2), heading, offsets, offsets, 5.0)
     return service.answer(query, frame), spy, service
 
@@ -222,3 +224,22 @@ def test_fg2_answers_from_device_crops_equal_cpu_crops(mosaic: Path, model_name:
                     same_results([r for r in out[on] if r is not None], matcher.match(frame, crops), 1e-5)
             worst = max(worst, same_results(out[False], out[True], 0.05))
     print(f"{model_name}: max |t, R, w| difference, device vs CPU crops: {worst:.3g}")
+
+
+def test_decoys_on_the_device_give_the_cpu_crops_chance_level(mosaic: Path) -> None:
+    """FixService's decoys (the centre crop turned by 90, 270, 180 deg) cut on the device, one batch per turn,
+    give each answer the chance level the CPU crops give."""
+    rng = np.random.default_rng(5)
+    frame = GroundFrame(rng.integers(0, 255, (CAMERA.height, CAMERA.width, 3), dtype=np.uint8), 1.0, CAMERA)
+    torch.manual_seed(0)
+    model = TinyFg2().to(DEVICE).eval()
+    offsets = np.array([[-6.0, 1.0], [0.0, 0.0], [6.0, -1.0], [2.0, 7.0], [0.0, -7.0]])
+    with SatelliteMap(mosaic) as sat:
+        out = {}
+        for on in (False, True):
+            cfg = Fg2Config(checkout="x", checkpoint="x", device=DEVICE, device_crops=on)
+            out[on], spy, _ = answers(Fg2Matcher(cfg, CAMERA, model=model), sat, frame, 0.4, offsets, 128, decoys=3)
+            assert spy.calls == ({"match": 0, "cut_crops": 4} if on else {"match": 1, "cut_crops": 0})
+        assert all(r is not None and r.null_w is not None and r.null_w > 0.0 for r in out[False] + out[True])
+        same_results(out[False], out[True], 0.05)
+        assert max(abs(a.null_w - b.null_w) for a, b in zip(out[False], out[True])) <= 0.05
