@@ -163,7 +163,7 @@ def test_a_camera_that_cannot_read_its_map_is_never_followed(tmp_path):
     is another world's (seed 11) over the same ground, so every camera answer is wrong. None is fused (weak, or
     refused by the innovation gate while GNSS holds the track, or no better than chance once lock is lost); the
     ground station is told the camera is at chance before the rover moves, and once GNSS goes our accuracy says
-    the position is lost, so EKF3 fails safe and holds. One run (stop 43): EKF3 within bound 100 % of the time
+    the position is lost, so EKF3 fails safe and holds. One run at d866902: EKF3 within bound 100 % of the time
     moving, no fix accepted, 104 weak, 4 at chance, EKF failsafe 12 s after GNSS went."""
     spec = MissionSpec(setup="handover", profile="ardupilot_rover_gps2", gnss_off_after_s=30.0, map_seed=11,
                        laps=1, timeout_s=200.0)

@@ -36,6 +36,7 @@ from taco_mav.bench.classical import textured_mosaic, write_geotiff
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import Estimator, Profile, load_profile
 from taco_mav.core.answer_check import credible, supported
+from taco_mav.core.gate import yaw_residual
 from taco_mav.core.plus.search import consensus
 from taco_mav.core.plus.search import cross_arm
 from taco_mav.core.search import body_to_world, cross_offsets, fix_position
@@ -158,7 +159,7 @@ class _Asker:
         for k, r in enumerate(results):
             if r is not None:
                 xy[k] = fix_position(centres[k], heading, r.t, self.lever)
-                psi[k] = math.atan2(r.R[1, 0], r.R[0, 0])
+                psi[k] = yaw_residual(r.R)
                 w[k] = r.w
         finite = np.isfinite(xy).all(axis=1)
         usable = finite.copy()

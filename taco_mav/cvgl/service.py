@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from taco_mav.config import Profile
+from taco_mav.core.gate import yaw_residual
 from taco_mav.core.search import fix_position
 from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame, Matcher
@@ -76,8 +77,7 @@ def chance_levels(own: Sequence[MatchResult | None], own_xy: np.ndarray, decoys:
         for d, dxy in zip(decoys, decoy_xy):
             if d is None or not math.isfinite(d.w):
                 continue
-            psi = math.atan2(float(d.R[1, 0]), float(d.R[0, 0]))
-            if yaw_gate_rad is not None and abs(psi) > yaw_gate_rad:
+            if yaw_gate_rad is not None and abs(yaw_residual(d.R)) > yaw_gate_rad:
                 continue
             if np.all(np.isfinite(xy)) and np.all(np.isfinite(dxy)) and float(np.hypot(*(dxy - xy))) <= apart_m:
                 continue
@@ -146,14 +146,12 @@ class FixService:
         chance level (`null_w`) when the service asks decoys. ValueError when the matcher's answer is malformed
         (wrong count, type or shape)."""
         t0 = time.perf_counter()
+        n_own = len(query.crop_centres)
+        decoy_q = query
         if self.decoy_turns:  # the decoys ride in the same matcher call, after the trigger's own crops
-            centre = np.mean(np.asarray(query.crop_centres, dtype=float).reshape(-1, 2), axis=0)
-            decoy_q = dataclasses.replace(
-                query, crop_centres=np.vstack([np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)]
-                                              + [centre[None, :]] * len(self.decoy_turns)))
-            n_own = len(query.crop_centres)
-        else:
-            decoy_q, n_own = query, len(query.crop_centres)
+            own_centres = np.asarray(query.crop_centres, dtype=float).reshape(-1, 2)
+            decoy_centres = np.repeat(own_centres.mean(axis=0)[None, :], len(self.decoy_turns), axis=0)
+            decoy_q = dataclasses.replace(query, crop_centres=np.vstack([own_centres, decoy_centres]))
         if self.map is not None and uses_device_crops(self.matcher):  # fg2.device_crops: the matcher warps them
             present, results, t1 = self._on_device(decoy_q, frame, n_own)
         else:
