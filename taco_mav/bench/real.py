@@ -74,7 +74,7 @@ def default_root() -> Path:
 
 
 @dataclass(frozen=True)
-class Verdict:
+class TriggerOutcome:
     """One trigger's outcome: the best answer's (highest w) distance from the camera (m) and w, the trigger's
     chance level (decoys' w; None without decoys), whether a fix was made and its distance from the camera (m;
     nan when none)."""
@@ -94,8 +94,8 @@ class Try:
     place: str
     view: str
     prior_error_m: float
-    own: Verdict
-    wrong: Verdict
+    own: TriggerOutcome
+    wrong: TriggerOutcome
 
 
 @dataclass(frozen=True)
@@ -141,7 +141,7 @@ class _Asker:
         return self._matchers[key]
 
     def ask(self, view: View, smap: SatelliteMap, truth_en: np.ndarray, prior_en: np.ndarray,
-            heading: float) -> Verdict:
+            heading: float) -> TriggerOutcome:
         """A query at prior_en (absolute UTM, m) with the ENU heading (rad), judged as the profile's mode judges
         an answer where no gate against the track stands: taco+ while lock is lost (the shipped profiles recover
         without an innovation gate, plus.recover_chi2_gate 0: what a relocalisation faces), with plus.recover_w_min,
@@ -181,8 +181,8 @@ class _Asker:
         err = float(np.hypot(*(xy[best] - truth_en))) if finite[best] else math.inf
         null = results[best].null_w if results[best] is not None else None
         accepted = bool(np.isfinite(fix).all())
-        return Verdict(err, float(w[best]), null, accepted,
-                       float(np.hypot(*(fix - truth_en))) if accepted else math.nan)
+        return TriggerOutcome(err, float(w[best]), null, accepted,
+                              float(np.hypot(*(fix - truth_en))) if accepted else math.nan)
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ def _zoom_for(m_per_px: float, lat: float) -> int:
 
 
 @dataclass(frozen=True)
-class _Grid:
+class _OutputRaster:
     """The output raster: UTM zone `epsg`, north-up, `m_per_px`; transform maps (col, row) to (E, N) metres."""
 
     epsg: int
@@ -83,14 +83,14 @@ class _Grid:
     m_per_px: float
 
 
-def _utm_grid(bbox: BBox, m_per_px: float) -> _Grid:
+def _utm_grid(bbox: BBox, m_per_px: float) -> _OutputRaster:
     proj = UtmProjector.for_latlon(*bbox.centre)
     lats, lons = np.meshgrid(np.linspace(bbox.south, bbox.north, 9), np.linspace(bbox.west, bbox.east, 9))
     E, N = proj.to_utm(lats.ravel(), lons.ravel())
     e0, n1 = math.floor(np.min(E) / m_per_px) * m_per_px, math.ceil(np.max(N) / m_per_px) * m_per_px
     width = max(1, math.ceil((np.max(E) - e0) / m_per_px - 1e-9))
     height = max(1, math.ceil((n1 - np.min(N)) / m_per_px - 1e-9))
-    return _Grid(proj.epsg, Affine(m_per_px, 0.0, e0, 0.0, -m_per_px, n1), width, height, m_per_px)
+    return _OutputRaster(proj.epsg, Affine(m_per_px, 0.0, e0, 0.0, -m_per_px, n1), width, height, m_per_px)
 
 
 def _windows(width: int, height: int) -> list[Window]:
@@ -207,7 +207,7 @@ def _free_bytes(folder: Path) -> tuple[int, int]:
     return shutil.disk_usage(existing).free, os.stat(existing).st_dev
 
 
-def _check_disk(bbox: BBox, grid: _Grid, src_m_per_px: float, out: Path, cache: Path) -> None:
+def _check_disk(bbox: BBox, grid: _OutputRaster, src_m_per_px: float, out: Path, cache: Path) -> None:
     """UsageError when the GeoTIFF and the tiles it needs would not fit on the disk(s) they go to."""
     px = grid.width * grid.height
     out_bytes = px * OUTPUT_BYTES_PER_PX
@@ -226,8 +226,8 @@ def _check_disk(bbox: BBox, grid: _Grid, src_m_per_px: float, out: Path, cache: 
                 "--m-per-px or another --out / --cache")
 
 
-def _write(src: rasterio.DatasetReader, grid: _Grid, out: Path, source: MapSource, zoom: int | None, http: GdalHttp,
-           retries: int, retry_delay_s: float, progress: bool) -> float:
+def _write(src: rasterio.DatasetReader, grid: _OutputRaster, out: Path, source: MapSource, zoom: int | None,
+           http: GdalHttp, retries: int, retry_delay_s: float, progress: bool) -> float:
     """Warp the service into the grid, window by window, into out.part; rename it to out. Returns the share of
     pixels with imagery; MapSourceError when there is none."""
     profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=4, dtype="uint8",
@@ -265,7 +265,7 @@ def _write(src: rasterio.DatasetReader, grid: _Grid, out: Path, source: MapSourc
     return fraction
 
 
-def _centre_latlon(grid: _Grid) -> tuple[float, float]:
+def _centre_latlon(grid: _OutputRaster) -> tuple[float, float]:
     tr = grid.transform
     e, n = tr.c + tr.a * grid.width / 2.0, tr.f + tr.e * grid.height / 2.0
     lat, lon = UtmProjector(grid.epsg).to_latlon(e, n)

@@ -77,7 +77,7 @@ def coarse_noise(rng: np.random.Generator, shape: tuple[int, int], cell_px: floa
     return cv2.warpAffine(g, M, (w, h), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
 
 
-class _Grid:
+class _OccupancyGrid:
     """The 1 m occupancy grid: local (x, y) metres <-> (col, row) with row 0 at ymax."""
 
     def __init__(self, extent: tuple[float, float, float, float]) -> None:
@@ -116,7 +116,7 @@ def layout_scene(rng: np.random.Generator, extent: tuple[float, float, float, fl
     """Place buildings, parking lots, trees and park paths around `roads` within `extent` (local metres).
     keep_clear: polylines (N, 2) local metres another vehicle drives (a SITL mission off the streets): nothing
     that stands up is placed within KEEP_CLEAR_M of them."""
-    grid = _Grid(extent)
+    grid = _OccupancyGrid(extent)
     road_mask = np.zeros_like(grid.occ)
     for r in roads:
         pts = np.round(grid.px(r.xy) * 4).astype(np.int32)
