@@ -8,11 +8,11 @@ import pytest
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus.mode import PlusMode
 from taco_mav.core.plus.params import PlusParams
-from taco_mav.daemon.anchor import Anchor
+from taco_mav.daemon.anchor import LocaliserAnchor
 
 
 def test_first_heading_from_course_when_moving_else_from_attitude():
-    a = Anchor(LocaliserParams())
+    a = LocaliserAnchor(LocaliserParams())
     origin = a.set_origin(49.0, 8.4, 115.0, speed=5.0, course=0.0)  # moving north
     conv = origin.convergence
     loc = a.localiser(10.0, attitude_yaw=1.0)
@@ -25,7 +25,7 @@ def test_first_heading_from_course_when_moving_else_from_attitude():
 
 
 def test_reanchoring_keeps_the_estimate_and_grows_sigma_over_a_gap():
-    a = Anchor(LocaliserParams(plus=PlusParams()))
+    a = LocaliserAnchor(LocaliserParams(plus=PlusParams()))
     a.set_origin(49.0, 8.4, 115.0, speed=10.0, course=math.pi / 2)  # east at 10 m/s
     loc = a.localiser(0.0, attitude_yaw=math.pi / 2, xy=(100.0, 50.0), sigma_xy=2.0)
     assert isinstance(loc.mode, PlusMode)

@@ -256,9 +256,9 @@ def test_start_fix_carried_to_the_first_imu_sample() -> None:
     """A GNSS origin read 0.5 s before the first IMU sample of a rover doing 5 m/s east: the Localiser starts
     2.5 m east (grid), not where the fix was; a far fix from home starts there; no carry beyond 2 s."""
     from taco_mav.config import localiser_params, profile_from_dict
-    from taco_mav.daemon.anchor import Anchor
+    from taco_mav.daemon.anchor import LocaliserAnchor
 
-    a = Anchor(localiser_params(profile_from_dict({})))
+    a = LocaliserAnchor(localiser_params(profile_from_dict({})))
     origin = a.set_origin(49.0, 8.4, 115.0, 5.0, math.pi / 2)
     a.set_start((0.0, 0.0), 5.0, math.pi / 2, None, t=10.0)
     est = a.localiser(10.5, math.pi / 2).estimate()

@@ -128,7 +128,7 @@ class Carried:
     carried_m: float
 
 
-class Anchor:
+class LocaliserAnchor:
     """The origin and the Localiser generations. `generation` goes up by one at each (re-)anchoring, so fixes
     asked for by an older Localiser can be dropped."""
 

@@ -33,7 +33,7 @@ from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dic
 from taco_mav.core import kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
-from taco_mav.daemon.anchor import Anchor
+from taco_mav.daemon.anchor import LocaliserAnchor
 from taco_mav.daemon.autopilot import WAKE_S, AutopilotLink
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.fixes import FixPipeline
@@ -92,7 +92,7 @@ class Daemon:
         self.clockmap = ClockMap(clock)
         self.reporter = Reporter(clock, profile.output.statustext_interval_s)
         self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self.reporter.status, matcher)
-        self.state = LiveState(Anchor(self.params), shadow=Shadow() if options.shadow else None)
+        self.state = LiveState(LocaliserAnchor(self.params), shadow=Shadow() if options.shadow else None)
         self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed), made when opened
         self.recorder: FrameRecorder | None = None  # --record: the camera's frames into the session folder
         assert options.link_timeout_s is not None
@@ -136,7 +136,7 @@ class Daemon:
         return self.state.origin
 
     @property
-    def anchor(self) -> Anchor:
+    def anchor(self) -> LocaliserAnchor:
         return self.state.anchor
 
     @property

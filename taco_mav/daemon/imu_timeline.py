@@ -13,7 +13,7 @@ import enum
 from dataclasses import dataclass
 
 
-class Verdict(enum.Enum):
+class TimelineVerdict(enum.Enum):
     OK = "ok"  # continues the timeline: integrate it
     OUT_OF_ORDER = "imu_out_of_order"  # not newer than the last sample: drop
     UNCONFIRMED = "imu_time_jump_unconfirmed"  # a jump, held until the next sample: drop for now
@@ -26,7 +26,7 @@ class Check:
     """verdict; t_from / t_to: the last sample before the jump and the first after it (REBOOT, GAP);
     outlier: a held jump turned out to be a lone corrupt sample (count it)."""
 
-    verdict: Verdict
+    verdict: TimelineVerdict
     t_from: float = 0.0
     t_to: float = 0.0
     outlier: bool = False
@@ -54,14 +54,14 @@ class ImuTimeline:
         if back or gap:
             held, self._held = self._held, t
             if held is None or not 0.0 < t - held <= self.max_dt_s:
-                return Check(Verdict.UNCONFIRMED)
+                return Check(TimelineVerdict.UNCONFIRMED)
             self._held = None
             assert last is not None
             self.last = t
-            return Check(Verdict.REBOOT if back else Verdict.GAP, last, held)
+            return Check(TimelineVerdict.REBOOT if back else TimelineVerdict.GAP, last, held)
         if self._held is not None:
             self._held, outlier = None, True
         if last is not None and t <= last:
-            return Check(Verdict.OUT_OF_ORDER, outlier=outlier)
+            return Check(TimelineVerdict.OUT_OF_ORDER, outlier=outlier)
         self.last = t
-        return Check(Verdict.OK, outlier=outlier)
+        return Check(TimelineVerdict.OK, outlier=outlier)

@@ -14,7 +14,7 @@ from taco_mav.core.types import ImuSample
 from taco_mav.daemon.drive import DriveCommand
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.imu_source import ATTITUDE_MESSAGES, ATTITUDE_STALE_S, InputSources
-from taco_mav.daemon.imu_timeline import ImuTimeline, Verdict
+from taco_mav.daemon.imu_timeline import ImuTimeline, TimelineVerdict
 from taco_mav.daemon.options import DaemonStats
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.state import LiveState
@@ -63,12 +63,12 @@ class Inputs:
         check = self.timeline.check(r.t, st.loc is not None)
         if check.outlier:
             self.stats.dropped["imu_time_outlier"] += 1
-        if check.verdict in (Verdict.UNCONFIRMED, Verdict.OUT_OF_ORDER):
+        if check.verdict in (TimelineVerdict.UNCONFIRMED, TimelineVerdict.OUT_OF_ORDER):
             self.stats.dropped[check.verdict.value] += 1
             return
-        if check.verdict is Verdict.REBOOT:
+        if check.verdict is TimelineVerdict.REBOOT:
             self._reboot(check.t_from, check.t_to)
-        elif check.verdict is Verdict.GAP:
+        elif check.verdict is TimelineVerdict.GAP:
             self._imu_gap(check.t_from, check.t_to)
         self.clockmap.on_autopilot_time(r.t)
         st.last_imu = r

@@ -102,7 +102,7 @@ class OriginHandler:
 
     def on_position(self, msg: Any, received: float) -> None:
         """GLOBAL_POSITION_INT: the autopilot's own position; before the first anchoring it is the start when no
-        real GNSS gives one (`Anchor.start_from_autopilot`)."""
+        real GNSS gives one (`LocaliserAnchor.start_from_autopilot`)."""
         p = self.decoders.autopilot_position(msg)
         if p is None:
             return
@@ -131,7 +131,7 @@ class OriginHandler:
 
     def _start_from_gnss(self, r: GnssReading) -> None:
         """Before the first anchoring: a real fix's speed and course, and its position if the vehicle has moved
-        away from the offered origin (`Anchor.start_from_fix`)."""
+        away from the offered origin (`LocaliserAnchor.start_from_fix`)."""
         origin = self.state.origin
         assert origin is not None
         f = self.gnss.fix(r, origin, None)

@@ -12,7 +12,7 @@ from taco_mav.config import Profile
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gcs import GCS_HEALTH_HZ, GcsHealth
 from taco_mav.daemon.options import DaemonStats
-from taco_mav.daemon.output import OutputStage
+from taco_mav.daemon.output_stage import OutputStage
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.scheduler import AutopilotPeriodic, Periodic
 from taco_mav.daemon.state import LiveState

@@ -2,10 +2,10 @@
 a real receiver is still honest.
 
 A twin of the Localiser runs beside the one whose estimate goes to the autopilot: made with it at every
-(re-)anchoring (`Anchor.twin`), fed the same IMU samples, drive commands, camera fixes (the main filter's queries,
-`Localiser.adopt_query`, answered by the same matcher call) and camera ground motion, but never GNSS. While the
-receiver is honest (the GNSS tracker's state "ok", no spoofing rejection), once a second of autopilot time the
-twin's distance to the receiver's latest fix (carried to the twin's time at the fix's velocity) goes to the
+(re-)anchoring (`LocaliserAnchor.twin`), fed the same IMU samples, drive commands, camera fixes (the main filter's
+queries, `Localiser.adopt_query`, answered by the same matcher call) and camera ground motion, but never GNSS.
+While the receiver is honest (the GNSS tracker's state "ok", no spoofing rejection), once a second of autopilot
+time the twin's distance to the receiver's latest fix (carried to the twin's time at the fix's velocity) goes to the
 ground station as NAMED_VALUE_FLOAT `taco_shad` (m) and to events.jsonl as `shadow` (t autopilot s, lat, lon of
 the twin, its h_acc_m, gnss_err_m); the session's last line says how it went (`summary`).
 

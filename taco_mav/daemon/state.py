@@ -1,4 +1,4 @@
-"""What the daemon's handlers share, and only that: the origin and the Localiser generations (`Anchor`), the
+"""What the daemon's handlers share, and only that: the origin and the Localiser generations (`LocaliserAnchor`), the
 current Localiser, the latest attitude and IMU reading, and when that reading arrived on the companion clock.
 The input handler writes the readings and anchors the Localiser; the origin handler sets the origin and feeds
 real GNSS; the output handler reads the estimate. Everything else a handler keeps is its own."""
@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 
 from taco_mav.core.localiser import Localiser
-from taco_mav.daemon.anchor import Anchor
+from taco_mav.daemon.anchor import LocaliserAnchor
 from taco_mav.daemon.shadow import Shadow
 from taco_mav.mavlink import encoders
 from taco_mav.mavlink.decoders import AttitudeReading, ImuReading
@@ -23,7 +23,7 @@ class LiveState:
     after the origin; attitude: the latest valid attitude (autopilot time); last_imu: the latest IMU reading fed
     (None again after a reboot); last_imu_clock: companion seconds when it arrived (the output's stall check)."""
 
-    anchor: Anchor
+    anchor: LocaliserAnchor
     loc: Localiser | None = None
     attitude: AttitudeReading | None = None
     last_imu: ImuReading | None = None

@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402
 
 from taco_mav.config import load_profile, replace_in  # noqa: E402
 from taco_mav.core.types import Estimate  # noqa: E402
-from taco_mav.daemon.output import OutputStage  # noqa: E402
+from taco_mav.daemon.output_stage import OutputStage  # noqa: E402
 from taco_mav.errors import ConfigError  # noqa: E402
 from taco_mav.mavlink import encoders  # noqa: E402
 from taco_mav.mavlink.decoders import AttitudeReading  # noqa: E402
