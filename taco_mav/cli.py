@@ -15,7 +15,7 @@ from typing import Sequence
 from taco_mav import checks
 from taco_mav.bench import SECTION_NAMES
 from taco_mav.cli_support import TacoArgumentParser, add_global_flags, configure_logging, package_version, run_command
-from taco_mav.commands import live, offline
+from taco_mav.commands import campaign, live, offline
 from taco_mav.config.fields import Estimator
 from taco_mav.config.profile import MATCHERS
 
@@ -209,6 +209,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=8.0, help="real-time factor, > 0 (default 8)")
     _force(p, "the run folder")
     p.set_defaults(func=live.cmd_demo)
+
+    def machine(p: argparse.ArgumentParser) -> None:  # where the runs run, and what this machine brings them
+        p.add_argument("--address", help="a Ray cluster to join, e.g. ray://head:10001 or auto (default: start a "
+                       "local Ray here)")
+        p.add_argument("--cpus", type=int, help="the local Ray's cores (default: this machine's)")
+        p.add_argument("--retries", type=int, default=3, help="times a run whose worker died is started again "
+                       "(default 3)")
+        p.add_argument("--ardurover", help="ArduPilot Rover SITL binary for ardupilot runs (default $ARDUROVER)")
+        p.add_argument("--px4", help="PX4 SITL binary for px4 runs (default $PX4_SITL)")
+        p.add_argument("--kitti-root", help="KITTI raw root for eval runs of sequences (default: as taco-mav eval)")
+
+    p = sub.add_parser("campaign", parents=[common], help="a grid of SITL missions, simulator runs and evaluations "
+                       "on Ray: a result per run, a table, a summary per configuration (docs/campaign.md)")
+    p.add_argument("spec", metavar="SPEC", help="the campaign file (YAML)")
+    p.add_argument("--out", required=True, help="folder for runs/, the table, summary.json and summary.png; a "
+                   "campaign started again there skips the runs it has done")
+    machine(p)
+    p.set_defaults(func=campaign.cmd_campaign)
+
+    p = sub.add_parser("tune", parents=[common], help="search a profile's parameters with Optuna against a "
+                       "campaign's median error, its coverage held in a band (docs/campaign.md)")
+    p.add_argument("--campaign", required=True, help="the campaign file whose runs score each trial")
+    p.add_argument("--space", required=True, help="the search space (YAML): profile, parameters, trials, seed, "
+                   "coverage band")
+    p.add_argument("--out", required=True, help="folder for the trials' runs, tune.json and best_profile.yaml")
+    machine(p)
+    p.set_defaults(func=campaign.cmd_tune)
     return parser
 
 

@@ -30,7 +30,7 @@ from taco_mav.errors import TacoError, UsageError
 log = logging.getLogger(__name__)
 
 __all__ = ["DEMO_ESTIMATOR", "DEMO_SEED", "DEMO_LENGTH_KM", "DEMO_SPEED", "DEMO_PROFILES", "DemoResult", "demo_profile",
-           "demo_run_dir", "demo_title", "run_demo"]
+           "demo_run_dir", "demo_title", "play_on_loopback", "run_demo"]
 
 DEMO_SEED = 7
 DEMO_LENGTH_KM = 1.0
@@ -125,21 +125,54 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
     out = Path(out)
     run_dir, profile = _prepare(out, speed, estimator, force)  # every check before the heavy imports
     from taco_mav.config import Estimator
-    from taco_mav.daemon.daemon import Daemon, DaemonOptions
     from taco_mav.datasets.synthetic import register_world_camera
-    from taco_mav.mavlink.connection import free_udp_port
-    from taco_mav.sim import Simulator, write_results
+    from taco_mav.sim import write_results
     from taco_mav.sim.plot import plot_gps_input
 
     register_world_camera()  # the daemon's camera is world:DIR
     world = demo_world(out, progress)
     start = time.monotonic()
+    played = play_on_loopback(world, profile, Estimator(estimator), run_dir / "daemon", speed=speed,
+                              duration_s=duration_s, progress=progress)
+    sim, interrupted = played.sim, played.interrupted
+    doc = sim.results()
+    results_path = write_results(doc, run_dir)
+    seq = doc["sequences"][sim.drive.name]
+    plot_path = plot_gps_input(sim.drive, sim.monitor.updates, sim.play_start or 0.0, run_dir / "trajectory.png",
+                               mosaic=sim.drive.world_dir / json.loads((world / "world.json").read_text())["mosaic"],
+                               title=demo_title(estimator, profile.matcher, profile.name, seq))
+    return DemoResult(drive=sim.drive.name, results=seq, results_path=results_path, plot_path=plot_path,
+                      world_dir=world, wall_s=time.monotonic() - start, daemon=played.daemon,
+                      estimator=estimator, matcher=profile.matcher, profile=profile.name, interrupted=interrupted)
+
+
+@dataclass(frozen=True)
+class LoopbackRun:
+    """A drive played on loopback: the simulator (its results, drive and monitor), the daemon's summary, and
+    whether Ctrl-C cut it short."""
+
+    sim: Any
+    daemon: dict[str, Any]
+    interrupted: bool
+
+
+def play_on_loopback(world: Path, profile: Any, estimator: Any, log_dir: Path, speed: float = DEMO_SPEED,
+                     duration_s: float | None = None, progress: bool = True, seed: int = 0,
+                     deny_after_s: float = 1.0) -> LoopbackRun:
+    """The simulated autopilot (`Simulator`, lockstep at `speed` x real time, receiver noise seeded by `seed`,
+    GNSS denied after `deny_after_s` drive seconds) playing `world`'s drive to the daemon (`profile`,
+    `estimator`, camera world:WORLD, logs in `log_dir`), both threads of this process on a free UDP port of
+    127.0.0.1. The `world:` camera scheme must be registered. Ctrl-C stops the drive (interrupted); a drive that
+    gave no GPS_INPUT raises (KeyboardInterrupt again when interrupted, else TacoError)."""
+    from taco_mav.daemon.daemon import Daemon, DaemonOptions
+    from taco_mav.mavlink.connection import free_udp_port
+    from taco_mav.sim import Simulator
+
     port = free_udp_port()
     sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=speed, lockstep=True, duration_s=duration_s,
-                    wait_companion_s=20.0, drain_s=0.3)
-    daemon = Daemon(profile,
-                    DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}",
-                                  log_dir=run_dir / "daemon", estimator=Estimator(estimator)),
+                    wait_companion_s=20.0, drain_s=0.3, seed=seed, deny_after_s=deny_after_s)
+    daemon = Daemon(profile, DaemonOptions(connect=f"udpin:127.0.0.1:{port}", camera=f"world:{world}",
+                                           log_dir=log_dir, estimator=estimator),
                     clock=sim.clock, wall_clock=sim.utc_now)
     interrupted = False
     daemon.start()
@@ -159,15 +192,7 @@ def run_demo(out: Path, progress: bool = True, speed: float = DEMO_SPEED, durati
             raise KeyboardInterrupt
         if daemon.exit_code is None:
             raise TacoError("the daemon produced no GPS_INPUT (run with -v to see its log)")
-    doc = sim.results()
-    results_path = write_results(doc, run_dir)
-    seq = doc["sequences"][sim.drive.name]
-    plot_path = plot_gps_input(sim.drive, sim.monitor.updates, sim.play_start or 0.0, run_dir / "trajectory.png",
-                               mosaic=sim.drive.world_dir / json.loads((world / "world.json").read_text())["mosaic"],
-                               title=demo_title(estimator, profile.matcher, profile.name, seq))
-    return DemoResult(drive=sim.drive.name, results=seq, results_path=results_path, plot_path=plot_path,
-                      world_dir=world, wall_s=time.monotonic() - start, daemon=daemon.summary(),
-                      estimator=estimator, matcher=profile.matcher, profile=profile.name, interrupted=interrupted)
+    return LoopbackRun(sim, daemon.summary(), interrupted)
 
 
 def _follow(sim: Any, duration_s: float | None, progress: bool) -> None:

@@ -38,6 +38,7 @@ LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"evaluation"}),
     frozenset({"sim"}),
     frozenset({"bench", "reliability", "demo", "calibrate", "checks"}),
+    frozenset({"campaign"}),  # runs of the use cases (SITL missions, the simulator, evaluations) on Ray
     frozenset({"cli", "cli_support", "commands"}),
 )
 CORE_MAY_IMPORT = ("taco_mav.core", "taco_mav.errors")
