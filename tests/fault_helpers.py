@@ -45,6 +45,7 @@ class TruthMatcher:
     may raise, sleep or return something else for the call-th call (0-based) instead."""
 
     name = "truth"
+    needs_true_pose = True  # it answers from the drive's truth (not the daemon's) and needs no camera
 
     def __init__(self, drive: SimDrive, origin: Origin,
                  fault: Callable[[int], object] | None = None) -> None:
@@ -105,7 +106,8 @@ def run_pipeline(profile: Profile, drive: SimDrive, matcher_fault: Callable[[int
     opts = DaemonOptions(connect="udpin:127.0.0.1:1", camera=camera, map_path=map_path,
                          matcher_timeout_s=matcher_timeout_s)
     stats, texts = Counters(), []
-    pipe = FixPipeline(profile, opts, ClockMap(), stats, lambda sev, text, key: texts.append(text), matcher)
+    pipe = FixPipeline(profile=profile, options=opts, clockmap=ClockMap(), stats=stats,
+                       status=lambda sev, text, key: texts.append(text), matcher=matcher)
     pipe.open(EventLog(None))
     pipe.start()
     pipe.on_origin(origin)
@@ -119,7 +121,7 @@ def run_pipeline(profile: Profile, drive: SimDrive, matcher_fault: Callable[[int
             pipe.drain(loc, 1)
             asked = stats.queries
             pipe.poll(loc, 1)
-            if stats.queries > asked and loc.query_in_flight and wait_s > 0:  # submitted, not cancelled
+            if stats.queries > asked and loc.desk.in_flight and wait_s > 0:  # submitted, not cancelled
                 deadline = time.monotonic() + wait_s
                 while pipe._results.empty() and time.monotonic() < deadline:
                     time.sleep(0.001)

@@ -13,16 +13,16 @@ from test_localiser_plus import PLUS, answers_at, run_plus
 from taco_mav.core.localiser import make_localiser
 from taco_mav.core.plus.lock import LockState
 from taco_mav.core.types import MatchResult
-from taco_mav.core.ukf import fix_covariance
+from taco_mav.core.ukf import fix_covariance, weight_sigmas
 
 CONFIRM = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=2.0, recover_confirm=True,
                                                              confirm_answers=3))
-# taco+ before issue 17's holds: every answer that passes the gates is applied at once
+# taco+ without the holds: every answer that passes the gates is applied at once
 NO_HOLD = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, jump_confirm_k=0.0, recover_confirm=False))
 
 
 def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
-    """Issue 17 (3-D world): while lock is lost, the best of a 37-61 crop grid is often a chance peak (w 0.5-0.85)
+    """On the 3-D world, while lock is lost, the best of a 37-61 crop grid is often a chance peak (w 0.5-0.85)
     somewhere in the grid. Scripted: the first recovery grids each answer one confident peak (w 0.9) at a random
     place within 50 m and nothing else; later grids answer the truth. Without confirmation the first chance peak
     relocalises the filter; with it (recover_confirm, confirm_answers 3) no chance peak is applied and the truth
@@ -46,7 +46,7 @@ def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
         return oracle.answer(q)
 
     def jumps_applied(loc):
-        return [o for o in loc.outcomes if o.accepted and len(o.weights) > 5]
+        return [o for o in loc.record.outcomes if o.accepted and len(o.weights) > 5]
 
     old = NO_HOLD
     loc_old, err_old, _ = run_plus(d, params=old, x0=40.0, planted=planted)
@@ -58,15 +58,15 @@ def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
     loc, err, _ = run_plus(d, params=CONFIRM, x0=40.0, planted=planted)
     applied = jumps_applied(loc)
     assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
-    assert all(o.reason in ("unconfirmed", "weak") for o in loc.outcomes[:6] if len(o.weights) > 5)
-    assert "recovered" in [k for _, k, _ in loc.lock_events] and loc.mode.lock.state is LockState.LOCKED
+    assert all(o.reason in ("unconfirmed", "weak") for o in loc.record.outcomes[:6] if len(o.weights) > 5)
+    assert "recovered" in [k for _, k, _ in loc.record.lock_events] and loc.estimator.lock.state is LockState.LOCKED
     frames = np.arange(len(err)) * 0.1
     assert np.median(err[frames > 40.0]) < 1.0
 
 
 def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirmed():
-    """Issue 17: the innovation gate is on P + R and R of a weak answer is large, so a wrong answer 15+ m off with
-    w 0.3 passed it while the IMU track was good to a metre. With jump_confirm_k it is held (reason
+    """The innovation gate is on P + R and R of a weak answer is large, so a wrong answer 15+ m off with w 0.3
+    passes it while the IMU track is good to a metre. With jump_confirm_k it is held (reason
     'unconfirmed'), the filter does not move, and the next true answers are accepted."""
     d = _drive()
     oracle = OracleMatcher(d, seed=2)
@@ -80,27 +80,27 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
             if q is None:
                 continue
             if q.capture_t > 60.0 and planted is None:
-                sc = loc.mode.fix_scale.scale
-                s_f, s_l = (sc * v for v in loc.fix_sigmas(0.3))
+                sc = loc.estimator.fix_scale.scale
+                s_f, s_l = (sc * v for v in weight_sigmas(loc.p.ukf, 0.3))
                 u = np.array([-math.sin(q.heading), math.cos(q.heading)])
-                S = loc.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
+                S = loc.timeline.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
                 dist = math.sqrt(9.0 / float(u @ np.linalg.solve(S, u)))  # NIS 9: inside the 13.82 gate
-                planted = (loc.add_fix(q.query_id, answers_at(q, loc.ukf.x[:2] + dist * u, w=0.3, psi_res=0.0)),
-                           dist, float(np.sqrt(np.linalg.eigvalsh(loc.ukf.P[:2, :2]).max())))
+                planted = (loc.add_fix(q.query_id, answers_at(q, loc.timeline.ukf.x[:2] + dist * u, w=0.3, psi_res=0.0)),
+                           dist, float(np.sqrt(np.linalg.eigvalsh(loc.timeline.ukf.P[:2, :2]).max())))
             else:
                 loc.add_fix(q.query_id, oracle.answer(q))
         out[name] = (loc, planted)
     (_, (o_old, dist, sig)), (new, (o_new, _, _)) = out["old"], out["new"]
     assert dist > 2.0 * math.sqrt(sig**2 + 4.0)  # far beyond what the prior allows
     assert o_old.accepted and o_new.reason == "unconfirmed"
-    after = [o for o in new.outcomes if o.capture_t > o_new.capture_t]
-    assert after and after[0].accepted and new.mode.lock.losses == 0
+    after = [o for o in new.record.outcomes if o.capture_t > o_new.capture_t]
+    assert after and after[0].accepted and new.estimator.lock.losses == 0
     truth = np.array(d.pose_at(d.t[-1])[:2])
     assert np.linalg.norm(new.estimate().xy - truth) < 1.5
 
 
 def test_a_chance_peak_between_true_recovery_answers_does_not_reset_their_count():
-    """Issue 17 (3-D world seed 4): recovery grids answered true, chance, true, chance, true ... Held answers are
+    """As on the 3-D world seed 4: recovery grids answered true, chance, true, chance, true ... Held answers are
     kept side by side (confirm_keep), so the third true answer relocalises and no chance peak is ever applied."""
     d = _drive()
     oracle = OracleMatcher(d, seed=2)
@@ -128,21 +128,21 @@ def test_a_chance_peak_between_true_recovery_answers_does_not_reset_their_count(
         q = loc.poll_query()
         if q is not None:
             loc_outcomes.append(loc.add_fix(q.query_id, planted(q)))
-    applied = [o for o in loc.outcomes if o.accepted and len(o.weights) > 5]
+    applied = [o for o in loc.record.outcomes if o.accepted and len(o.weights) > 5]
     assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
     assert len(grids) <= 8  # true answers 1, 3, 5 confirm: not reset by the peaks between them
-    assert loc.mode.lock.state is LockState.LOCKED
+    assert loc.estimator.lock.state is LockState.LOCKED
 
 
 def test_held_recovery_answers_wait_for_a_slow_matcher():
-    """Review of issue 17: held answers expire after confirm_window_s between answers; a matcher slower than that
+    """Held answers expire after confirm_window_s between answers; a matcher slower than that
     (a big recovery grid on a slow device: an answer 6 s after capture, the next grid 15 s later) must still be
     able to confirm, so the window stretches to 3 answer latencies. A quick matcher's old answers still expire."""
     P = np.eye(6)
     innov = np.array([12.0, -5.0])
     for latency, expect in ((6.0, "confirmed"), (0.5, "hold")):
         loc = make_localiser(CONFIRM, 0.0)
-        hold = loc.mode.answers.hold
+        hold = loc.estimator.answers.hold
         out = [hold(LockState.LOST, innov, 13.0, P, t, 0.0, latency) for t in (20.0, 35.0, 50.0)]
         assert out[:2] == ["hold", "hold"] and out[2] == expect, (latency, out)
 
@@ -166,7 +166,7 @@ def test_recovery_answers_agree_when_one_speed_error_along_the_track_explains_th
         for k, t in enumerate(times):
             odo = 16.0 * k  # 8 m/s
             c = np.array([-18.0, 6.0]) + speed_error * a[k] + scatter * rng.normal(size=2)
-            out.append(loc.mode.answers.hold(LockState.LOST, c, float(np.linalg.norm(c)), P, t, odo, 1.0, a[k]))
+            out.append(loc.estimator.answers.hold(LockState.LOST, c, float(np.linalg.norm(c)), P, t, odo, 1.0, a[k]))
         return out
 
     assert outcomes(2.0, 3.0) == ["hold", "hold", "confirmed"]
@@ -199,8 +199,8 @@ def test_rejected_answers_widen_the_reported_accuracy_only_when_they_agree():
             return oracle.answer(q)
 
         loc, err, sig = run_plus(d, params=params, planted=planted)
-        reasons = [o.reason for o in loc.outcomes if 60.0 < o.capture_t <= hits[-1] + 1e-9]
-        notes = [k for t, k, _ in loc.lock_events if k == "fixes_disagree"]
+        reasons = [o.reason for o in loc.record.outcomes if 60.0 < o.capture_t <= hits[-1] + 1e-9]
+        notes = [k for t, k, _ in loc.record.lock_events if k == "fixes_disagree"]
         assert reasons[-2:] == ["innovation_gate"] * 2, reasons
         assert bool(notes) is widened, (offsets, w, notes)
         assert bool(sig.max() > 10.0) is widened, (w, sig.max())

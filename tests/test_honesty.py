@@ -67,7 +67,7 @@ def honesty_run(estimator: str, seed: int = 4) -> dict[str, float]:
             errors.append(math.hypot(est.xy[0] - x, est.xy[1] - y))
             sigmas.append(est.sigma_h)
     err, sig = np.array(errors), np.array(sigmas)
-    planted = [o for o in loc.outcomes if PLANT[0] <= o.capture_t <= PLANT[1]]
+    planted = [o for o in loc.record.outcomes if PLANT[0] <= o.capture_t <= PLANT[1]]
     return {"covered": float(np.mean(err <= COVER * sig)), "worst_ratio": float(np.max(err / sig)),
             "max_error_m": float(err.max()), "planted": len(planted),
             "planted_accepted": sum(o.accepted for o in planted), "outputs": len(err)}

@@ -1,4 +1,4 @@
-"""The lever arms (issue 17, deliverable 4): every matcher localises the CAMERA, the Localiser tracks the vehicle
+"""The lever arms: every matcher localises the CAMERA, the Localiser tracks the vehicle
 reference point, the autopilot wants its GPS antenna. Checked end to end: an FG2-statistics emulator that answers
 with the camera's true position, a Localiser that takes the lever arm off (and the bias when it does not), on a
 synthetic drive and on KITTI's own truth; and the daemon's warning when the autopilot's GPSn_POS_X/Y/Z disagree
@@ -47,7 +47,7 @@ def _synthetic_run(drive, emulator_lever, localiser_lever) -> tuple[float, float
         if q is not None:
             crops = [Crop(EMPTY, c, q.heading, 0.2) for c in q.crop_centres]
             loc.add_fix(q.query_id, em.match(GroundFrame(EMPTY, q.capture_t, CAMERA), crops))
-    track = np.array(loc.track)
+    track = np.array(loc.record.track)
     return _errors(track[:, 1:3], np.array([drive.pose_at(t) for t in track[:, 0]]))
 
 

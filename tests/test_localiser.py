@@ -27,7 +27,7 @@ def run(drive, params: LocaliserParams, latency: float = 0.0, matcher=None, plan
             _, q = pending.pop(0)
             answer = planted(q) if planted else matcher.answer(q)
             loc.add_fix(q.query_id, answer)
-    track = np.array(loc.track)
+    track = np.array(loc.record.track)
     truth = np.array([drive.pose_at(t)[:2] for t in track[:, 0]])
     ate = float(np.sqrt(np.mean(np.sum((track[:, 1:3] - truth) ** 2, axis=1))))
     return loc, ate
@@ -75,8 +75,8 @@ def test_error_trigger_fires_on_a_moving_vehicle_before_the_time_trigger():
     assert q.capture_t == pytest.approx(0.8, abs=1e-6)
     assert q.epsilon == pytest.approx(1.5 * 0.8**1.5, rel=1e-3)
     # forward bias 0.4 eps along heading east from the UKF position, cross arm 0.5 eps
-    assert q.centre - loc.ukf.x[:2] == pytest.approx([0.4 * q.epsilon, 0.0], abs=1e-9)
-    assert loc.ukf.x[0] == pytest.approx(8.0, abs=0.02)  # the unscented mean is E[cos(theta)] short
+    assert q.centre - loc.timeline.ukf.x[:2] == pytest.approx([0.4 * q.epsilon, 0.0], abs=1e-9)
+    assert loc.timeline.ukf.x[0] == pytest.approx(8.0, abs=0.02)  # the unscented mean is E[cos(theta)] short
     assert q.crop_centres[2] - q.centre == pytest.approx([0.5 * q.epsilon, 0.0], abs=1e-6)
 
 
@@ -128,7 +128,7 @@ def test_smoothed_trajectory_is_close_to_truth():
     d = _drive()
     loc, ate = run(d, LocaliserParams())
     res = loc.smoothed()
-    track = np.array(loc.track)
+    track = np.array(loc.record.track)
     truth = np.array([d.pose_at(t)[:2] for t in track[:, 0]])
     smoothed_ate = float(np.sqrt(np.mean(np.sum((res.poses[:, :2] - truth) ** 2, axis=1))))
     assert len(res.poses) == len(track)

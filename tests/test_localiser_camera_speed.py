@@ -66,7 +66,7 @@ def test_camera_speed_bounds_the_speed_drift_of_a_noisy_imu():
     true = np.interp(t, d.t, d.speed)
     assert np.abs(speed[t > 5] - true[t > 5]).max() < 0.3
     assert err[-1] < 0.15 * err0[-1]  # along-track drift over 60 s without fixes
-    assert 0.03 < float(loc.ukf.x[4]) < 0.15  # the accelerometer bias (0.1) partly learnt from the camera speed
+    assert 0.03 < float(loc.timeline.ukf.x[4]) < 0.15  # the accelerometer bias (0.1) partly learnt from the camera speed
 
 
 def test_sideways_motion_is_refused_not_taken_for_speed():

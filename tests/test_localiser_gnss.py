@@ -110,7 +110,7 @@ def test_taco_plus_calibrates_on_gnss_and_dead_reckons_after_it_is_lost():
     d, samples = drive()
     fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, until=60.0)
     loc, rec, outs, _ = run(d, samples, fixes, PLUS)
-    assert isinstance(loc.mode, PlusMode) and used(outs) == 1.0
+    assert isinstance(loc.estimator, PlusMode) and used(outs) == 1.0
     assert all(o.reason == "fused" for t, o in outs if t > 0.1)
     at = window(rec, 59.95, 60.05)[0]
     # at 100 s: the biases learnt on the GNSS (the compass bias, a Gauss-Markov state, decays with tau 60 s)
@@ -137,7 +137,7 @@ def test_paper_mode_re_anchors_on_gnss():
     assert np.sqrt(np.mean(fused[:, 1] ** 2 + fused[:, 2] ** 2)) < 2.5
     steps = np.hypot(*np.diff(window(rec, 58.0, 63.0)[:, 1:3], axis=0).T)
     assert steps.max() < 3.0 * window(rec, 58.0, 63.0)[:, 3].min()
-    assert loc.gnss_state == "ok" and not loc.gnss_in_use
+    assert loc.gnss.state == "ok" and not loc.gnss.in_use
 
 
 @pytest.mark.parametrize("bearing, drag_velocity, limit_s", [(0.0, True, 3.0), (270.0, True, 3.0),
@@ -156,7 +156,7 @@ def test_a_dragged_receiver_is_rejected_and_the_output_stays_within_5_m(bearing,
     assert used(outs, first, 80.0) < 0.05
     err = window(rec, 55.0, 80.0)
     assert np.hypot(err[:, 1], err[:, 2]).max() < 5.0
-    events = loc.take_gnss_events()
+    events = loc.gnss.take_events()
     assert events and events[0][1] == "gnss_rejected" and "innovation=" in events[0][2]
     assert abs(events[0][0] - first) < 0.15
 
@@ -218,7 +218,7 @@ def test_camera_at_a_low_duty_while_gnss_is_healthy_and_late_fixes_replay_the_gn
     assert np.all(gaps >= PLUS.gnss.camera_interval_s - 0.2)
     after = [q for q in queries if q.capture_t >= 60.0 + PLUS.gnss.gap_s]  # the receiver is lost gap_s after
     assert after and after[0].capture_t < 72.0 and all(q.reason != "gnss_check" for q in after)
-    assert sum(o.accepted for o in loc.outcomes if o.capture_t < 60.0) >= 2
+    assert sum(o.accepted for o in loc.record.outcomes if o.capture_t < 60.0) >= 2
     assert used(outs) == 1.0
     assert np.sqrt(np.mean(np.sum(window(rec, 60.0, 100.0)[:, 1:3] ** 2, axis=1))) < 2.0
 

@@ -16,7 +16,7 @@ from taco_mav.core.plus.lock import LockState
 from taco_mav.core.plus.mode import PlusMode
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.types import MatchResult
-from taco_mav.core.ukf import fix_covariance
+from taco_mav.core.ukf import fix_covariance, weight_sigmas
 
 PLUS = LocaliserParams(plus=PlusParams())
 
@@ -49,8 +49,8 @@ def _rms(e: np.ndarray) -> float:
 
 
 def test_make_localiser_picks_the_mode():
-    assert isinstance(make_localiser(LocaliserParams(), 0.0).mode, PaperMode)
-    assert isinstance(make_localiser(PLUS, 0.0).mode, PlusMode)
+    assert isinstance(make_localiser(LocaliserParams(), 0.0).estimator, PaperMode)
+    assert isinstance(make_localiser(PLUS, 0.0).estimator, PlusMode)
 
 
 def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
@@ -63,13 +63,13 @@ def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
     assert _rms(err) < 1.0 and _rms(err) < 1.1 * paper_ate  # about paper's accuracy at under half its fixes
     # the oracle's noise is a third of the paper's w -> sigma mapping (0.5 / 1.0 m vs 1.5 / 3.0 m at w = 1):
     # the adaptive scale finds it (floor 0.3)
-    assert 0.3 <= loc.mode.fix_scale.scale <= 0.5
+    assert 0.3 <= loc.estimator.fix_scale.scale <= 0.5
     extra = loc.estimate().extra
-    assert extra["fix_scale"] == loc.mode.fix_scale.scale and abs(extra["compass_bias"]) < 0.02
-    assert len(loc.queries) < 0.5 * len(paper.queries)
+    assert extra["fix_scale"] == loc.estimator.fix_scale.scale and abs(extra["compass_bias"]) < 0.02
+    assert len(loc.record.queries) < 0.5 * len(paper.record.queries)
     assert abs(_rms(err1) - _rms(err)) < 0.3  # rewind/replay keeps the speed feedback consistent
     assert np.mean(err <= 3.0 * np.maximum(sig, 1e-3)) >= 0.95  # honest uncertainty
-    assert loc.mode.lock.losses == 0
+    assert loc.estimator.lock.losses == 0
 
 
 def answers_at(q, world_xy: np.ndarray, w: float = 0.95, psi_res: float = 0.02) -> list[MatchResult]:
@@ -98,23 +98,23 @@ def test_planted_30m_silent_outlier_is_rejected():
     loc, err, _ = run_plus(d, planted=planted)
     _, clean, _ = run_plus(d)
     assert hits
-    reasons = {o.query_id: o.reason for o in loc.outcomes}
+    reasons = {o.query_id: o.reason for o in loc.record.outcomes}
     assert all(reasons[h] == "innovation_gate" for h in hits)
     # the outlier moves nothing: the error is what the drive without it has, plus the dead reckoning over the
     # fix it cost (the planted window holds no good answer)
     assert err.max() < 3.5 and err.max() < clean.max() + 0.6
-    assert loc.mode.lock.losses == 0
+    assert loc.estimator.lock.losses == 0
 
 
 def _answer_with_nis(loc, q, target_nis: float, agreeing: int) -> list[MatchResult]:
     """Answers to `q` placing the vehicle off the filter's estimate, to the left, by the distance that gives
     `target_nis` under the filter's own S = P + R; `agreeing` crops say so (w 0.7), the rest are misses."""
-    sc = loc.mode.fix_scale.scale
-    s_f, s_l = (sc * v for v in loc.fix_sigmas(0.7))
+    sc = loc.estimator.fix_scale.scale
+    s_f, s_l = (sc * v for v in weight_sigmas(loc.p.ukf, 0.7))
     u = np.array([-math.sin(q.heading), math.cos(q.heading)])  # left of the heading
-    S = loc.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
+    S = loc.timeline.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
     d = math.sqrt(target_nis / float(u @ np.linalg.solve(S, u)))
-    claimed = answers_at(q, loc.ukf.x[:2] + d * u, w=0.7, psi_res=0.0)
+    claimed = answers_at(q, loc.timeline.ukf.x[:2] + d * u, w=0.7, psi_res=0.0)
     return claimed[:agreeing] + [MatchResult(np.eye(2), np.zeros(2), 0.05)] * (len(claimed) - agreeing)
 
 
@@ -142,16 +142,16 @@ def test_an_uncorroborated_answer_meets_the_tighter_gate():
 def test_displaced_estimate_is_detected_and_recovered():
     d = _drive()
     loc, err, sig = run_plus(d, x0=40.0)  # the filter believes it starts 40 m east of the truth, sigma 1 cm
-    kinds = [k for _, k, _ in loc.lock_events]
+    kinds = [k for _, k, _ in loc.record.lock_events]
     assert kinds[0] == "lock_lost" and "recovered" in kinds
-    t_rec = next(t for t, k, _ in loc.lock_events if k == "recovered")
-    n_triggers = sum(1 for q in loc.queries if q.capture_t <= t_rec)
+    t_rec = next(t for t, k, _ in loc.record.lock_events if k == "recovered")
+    n_triggers = sum(1 for q in loc.record.queries if q.capture_t <= t_rec)
     assert n_triggers <= 30 and t_rec <= 15.0
-    assert any(len(q.crop_centres) > 5 for q in loc.queries)  # the widened grid search ran
+    assert any(len(q.crop_centres) > 5 for q in loc.record.queries)  # the widened grid search ran
     frames = np.arange(len(err)) * 0.1
     after = err[frames > t_rec + 1.0]
     assert np.median(after) < 1.0 and after.max() < 5.0  # back to normal tracking, far inside the capture radius
-    assert loc.mode.lock.state is LockState.LOCKED
+    assert loc.estimator.lock.state is LockState.LOCKED
 
 
 def _biased(drive, bias: float):
@@ -163,7 +163,7 @@ def _biased(drive, bias: float):
 def test_accelerometer_bias_is_observable_from_fixes():
     d = _biased(_drive(), 0.08)
     loc, err, _ = run_plus(d)
-    b = float(loc.ukf.x[4])
+    b = float(loc.timeline.ukf.x[4])
     assert abs(b - 0.08) < 0.03
     assert abs(loc.estimate().speed - d.speed[-1]) < 0.3
     assert _rms(err[len(err) // 2:]) < 1.0
@@ -195,7 +195,7 @@ def test_zero_velocity_updates_hold_a_stopped_vehicle_without_fixes():
 def test_no_fix_run_grows_uncertainty_and_declares_loss_honestly():
     d = _drive()
     loc, err, sig = run_plus(d, planted=lambda q: [None] * len(q.crop_centres))
-    assert loc.mode.lock.losses == 1
+    assert loc.estimator.lock.losses == 1
     assert sig[-1] > sig[10]
     assert all(isinstance(v, float) and math.isfinite(v) for v in sig)
 
@@ -209,7 +209,7 @@ def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_so
     loc, err, _ = run_plus(d, params=params)
     odo = np.concatenate([[0.0], np.cumsum(d.speed[1:] * np.diff(d.t))])  # distance driven at each sample, m
     at = lambda t: float(np.interp(t, d.t, odo))  # noqa: E731
-    gaps = np.diff([at(o.capture_t) for o in loc.outcomes if o.accepted])
+    gaps = np.diff([at(o.capture_t) for o in loc.record.outcomes if o.accepted])
     assert len(gaps) > 20 and np.median(gaps) == pytest.approx(40.0, abs=2.0) and gaps.max() < 45.0
     assert _rms(err) < 1.0
 
@@ -222,7 +222,7 @@ def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_so
         return OracleMatcher(d, seed=2).answer(q)
 
     loc, _, _ = run_plus(d, params=params, planted=weak_once)
-    after = [o.capture_t for o in loc.outcomes if o.capture_t > missed[0]]
+    after = [o.capture_t for o in loc.record.outcomes if o.capture_t > missed[0]]
     assert 9.0 <= at(after[0]) - at(missed[0]) <= 12.0  # retried after ~10 m
 
 
@@ -244,8 +244,8 @@ def test_time_trigger_asks_again_sooner_after_an_answer_without_a_fix():
         missed.clear()
         loc, _, _ = run_plus(d, params=dataclasses.replace(PLUS, plus=dataclasses.replace(base, trigger_retry_s=retry)),
                              planted=weak_twice)
-        t = [o.capture_t for o in loc.outcomes]
-        return loc.outcomes, t.index(missed[0])
+        t = [o.capture_t for o in loc.record.outcomes]
+        return loc.record.outcomes, t.index(missed[0])
 
     out, k = run(2.5)
     t = [o.capture_t for o in out]
@@ -276,7 +276,7 @@ def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
     for defer_w, expect in ((0.0, ["accepted"]), (0.6, ["deferred", "deferred", "accepted"])):
         params = dataclasses.replace(PLUS, plus=dataclasses.replace(base, defer_w=defer_w))
         loc, err, _ = run_plus(d, params=params, planted=weak_after_60)
-        after = [o for o in loc.outcomes if o.capture_t > 60.0]
+        after = [o for o in loc.record.outcomes if o.capture_t > 60.0]
         assert [o.reason for o in after[:len(expect)]] == expect
         if defer_w:
             gaps = np.diff([at(o.capture_t) for o in after[:3]])
@@ -284,11 +284,11 @@ def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
             assert np.all((gaps >= 1.5) & (gaps <= 6.0))
             # the next query waits for the distance trigger again (40 m after the accepted one)
             assert at(after[3].capture_t) - at(after[2].capture_t) > 30.0
-        assert loc.mode.lock.losses == 0 and _rms(err) < 1.5
+        assert loc.estimator.lock.losses == 0 and _rms(err) < 1.5
     # an unhealthy filter (prior 1-sigma at the covariance trigger) takes the weak answer at once
     params = dataclasses.replace(PLUS, plus=dataclasses.replace(base, defer_w=0.6, trigger_sigma_m=0.01))
     loc, _, _ = run_plus(d, params=params, planted=weak_after_60)
-    assert not any(o.reason == "deferred" for o in loc.outcomes)
+    assert not any(o.reason == "deferred" for o in loc.record.outcomes)
 
 
 def test_the_maps_georeferencing_offset_is_learnt_from_the_start_and_reported():
@@ -312,7 +312,7 @@ def test_the_maps_georeferencing_offset_is_learnt_from_the_start_and_reported():
     (_, rms0, cov0, asked0), (loc1, rms1, cov1, asked1) = out[0.0], out[1.0]
     assert asked1[0] == "map" and "map" not in asked0
     assert rms1 < 0.8 * rms0 and cov1 > 0.9 > cov0, (rms0, rms1, cov0, cov1)
-    b_hat = loc1.ukf.x[6:8]
+    b_hat = loc1.timeline.ukf.x[6:8]
     assert np.linalg.norm(b_hat - b) < 0.6 * np.linalg.norm(b) and b_hat @ b > 0, b_hat
     assert loc1.estimate().extra["map_offset"] == pytest.approx(list(b_hat))
 
@@ -324,7 +324,7 @@ def test_isotropic_fix_noise_takes_the_mean_of_the_papers_two_sigmas():
     iso = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, fix_isotropic=True))
     for params, ratio in ((PLUS, 2.0), (iso, 1.0)):
         loc, _, _ = run_plus(d, params=params)
-        taken = [o for o in loc.outcomes if o.accepted]
+        taken = [o for o in loc.record.outcomes if o.accepted]
         assert len(taken) >= 5
         assert all(abs(o.sigma_lat / o.sigma_fwd - ratio) < 1e-9 for o in taken), [(o.sigma_fwd, o.sigma_lat)
                                                                                   for o in taken]
@@ -348,8 +348,8 @@ def test_the_answers_rotation_measures_an_ahrs_heading_error():
     runs = [run_plus(d, LocaliserParams(plus=dataclasses.replace(base, fix_yaw_sigma_rad=s)), planted=truthful)
             for s in (0.0, 0.02)]
     (gate, err_gate, _), (loc, err, _) = runs
-    heading = [math.remainder(float(r.ukf.x[2]) - d.pose_at(r.t)[2], 2 * math.pi) for r in (gate, loc)]
-    assert abs(heading[1]) < 0.02 and abs(float(loc.ukf.x[5]) + 0.1) < 0.03  # the compass reads theta - 0.1 (ENU)
+    heading = [math.remainder(float(r.timeline.ukf.x[2]) - d.pose_at(r.t)[2], 2 * math.pi) for r in (gate, loc)]
+    assert abs(heading[1]) < 0.02 and abs(float(loc.timeline.ukf.x[5]) + 0.1) < 0.03  # the compass reads theta - 0.1 (ENU)
     # the first 30 s (10 Hz frames), while the gate-only filter still learns the bias from positions: 2.0 / 5.8 m
     # (RMS / max) against 1.1 / 2.8 m
     assert _rms(err[:300]) < 0.7 * _rms(err_gate[:300]) and err[:300].max() < 0.6 * err_gate[:300].max()
@@ -377,4 +377,4 @@ def test_gyro_heading_keeps_the_track_straight_through_a_lagging_ahrs():
     (_, err_compass, _), (loc, err_gyro, _) = runs
     print(_rms(err_compass), _rms(err_gyro), err_compass.max(), err_gyro.max())
     assert _rms(err_gyro) < 0.6 * _rms(err_compass) and err_gyro.max() < 0.6 * err_compass.max()
-    assert abs(math.remainder(float(loc.ukf.x[2]) - d.pose_at(loc.t)[2], 2 * math.pi)) < 0.02
+    assert abs(math.remainder(float(loc.timeline.ukf.x[2]) - d.pose_at(loc.t)[2], 2 * math.pi)) < 0.02

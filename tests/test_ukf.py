@@ -58,8 +58,8 @@ def test_filter_is_never_overconfident_on_a_simulated_drive():
             out = loc.add_fix(q.query_id, matcher.answer(q))
             assert out.accepted
             x, y, _ = d.pose_at(q.capture_t)
-            e = loc.ukf.x[:2] - np.array([x, y])
-            nees.append(float(e @ np.linalg.solve(loc.ukf.P[:2, :2], e)))
+            e = loc.timeline.ukf.x[:2] - np.array([x, y])
+            nees.append(float(e @ np.linalg.solve(loc.timeline.ukf.P[:2, :2], e)))
     assert len(nees) > 80
     inside = np.mean(np.array(nees) <= CHI2_2DOF_95)
     assert inside >= 0.90, f"only {inside:.0%} of fixes inside the 95% chi2 bound"

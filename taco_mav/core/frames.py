@@ -5,31 +5,16 @@ GNSS fusion and taco+, and read by the evaluation. Positions ENU metres, heading
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import enum
+from dataclasses import KW_ONLY, dataclass, field
 
 import numpy as np
 
+from taco_mav.core.corrections import Correction, GnssCorrection, GnssMeasurement
 from taco_mav.core.error_model import AnchorWindow, ErrorTerms, Moments
 from taco_mav.core.preintegration import Increment
 
-__all__ = ["FixOutcome", "GnssMeasurement", "Tick"]
-
-
-@dataclass(frozen=True)
-class GnssMeasurement:
-    """One reading referred to the end of a filter frame (kept on the frame for replays).
-    t: the reading's time, s; xy: position at the frame end, ENU m (2,); var_xy: its variance, m^2 (each
-    axis); speed: ground speed at the frame end, m/s (the reading's less what the preintegrator gained since),
-    or None; var_speed: (m/s)^2; course: grid course at the frame end, ENU rad (the reading's less the heading
-    change since), or None; var_course: rad^2."""
-
-    t: float
-    xy: np.ndarray
-    var_xy: float
-    speed: float | None = None
-    var_speed: float = 0.0
-    course: float | None = None
-    var_course: float = 0.0
+__all__ = ["FixOutcome", "FixReason", "GnssMeasurement", "Tick"]
 
 
 @dataclass
@@ -46,28 +31,57 @@ class Tick:
     window: AnchorWindow = AnchorWindow()
     pre_xy: tuple[float, float] = (0.0, 0.0)
     terms: ErrorTerms = ErrorTerms(0.0, 0.0, 0.0)
-    fix: tuple[np.ndarray, np.ndarray] | None = None  # (z, R) applied at this frame
-    fix_heading: tuple[float, float] | None = None  # taco+: (true heading ENU rad, 1-sigma rad) of that fix
-    stationary: bool = False  # taco+: zero-velocity update at this frame
-    dv_fed: float = 0.0  # taco+: speed error moved into the preintegrator after this frame, m/s
+    corrections: list[Correction] = field(default_factory=list)  # applied at this frame (replayed), by stage
+    dv_fed: float = 0.0  # speed moved into the preintegrator after this frame, m/s
     track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
     scale_track: tuple[float, float] | None = None  # taco+: displacement on the camera's speed to this frame, ENU m
-    gnss: list[GnssMeasurement] = field(default_factory=list)  # real GNSS applied at this frame (replayed)
+
+    def add(self, c: Correction) -> None:
+        """Keep correction `c` on this frame, in stage order (after those of its stage already kept)."""
+        i = len(self.corrections)
+        while i > 0 and self.corrections[i - 1].stage > c.stage:
+            i -= 1
+        self.corrections.insert(i, c)
+
+    @property
+    def gnss(self) -> list[GnssMeasurement]:
+        """The real GNSS readings applied at this frame."""
+        return [c.m for c in self.corrections if isinstance(c, GnssCorrection)]
+
+    def drop_gnss(self) -> None:
+        """Forget the real GNSS readings applied at this frame (a rollback replays without them)."""
+        self.corrections = [c for c in self.corrections if not isinstance(c, GnssCorrection)]
+
+
+class FixReason(enum.StrEnum):
+    """What became of an answered query (`FixOutcome.reason`)."""
+
+    ACCEPTED = "accepted"  # fused
+    UNKNOWN_QUERY = "unknown_query"  # it answers no query in flight
+    NO_RESULTS = "no_results"  # no crop could be matched
+    NONFINITE = "nonfinite"  # no finite answer with a positive weight
+    YAW_GATE = "yaw_gate"  # the answer's rotation disagrees with the compass (paper Sec. III-E)
+    AT_CHANCE = "at_chance"  # no answer beat the trigger's chance level or the crops disagree (answer_check.py)
+    STALE = "stale"  # its capture frame left the history
+    WEAK = "weak"  # taco+: no answer strong enough for a consensus
+    DEFERRED = "deferred"  # taco+: weak, and the filter can wait for a better one
+    INNOVATION_GATE = "innovation_gate"  # taco+: too far from the track for its covariance
+    UNCONFIRMED = "unconfirmed"  # taco+: a jump held until a second answer confirms it
 
 
 @dataclass(frozen=True)
 class FixOutcome:
-    """What happened to one answered query. accepted: fused; reason: "accepted", "yaw_gate", "stale",
-    "unknown_query", "no_results", "nonfinite", "at_chance" (no answer beat the trigger's decoys,
-    core/answer_check.py) or taco+'s "weak", "deferred", "innovation_gate", "unconfirmed"; chosen: index of the winning crop; xy: the fix, ENU metres;
-    yaw_residual: rad; sigma_fwd/sigma_lat: metres; nis: normalised innovation squared; delay_s: arrival
-    minus capture time; weights: w of every crop."""
+    """What happened to one answered query. accepted: fused; reason: why (`FixReason`); capture_t, arrival_t:
+    the query's capture and the answer's arrival, autopilot s; chosen: index of the winning crop; xy: the fix,
+    ENU metres; yaw_residual: rad; sigma_fwd/sigma_lat: metres; nis: normalised innovation squared; weights: w
+    of every crop."""
 
     query_id: int
     accepted: bool
-    reason: str
+    reason: FixReason
     capture_t: float
     arrival_t: float
+    _: KW_ONLY
     chosen: int = -1
     xy: np.ndarray | None = None
     yaw_residual: float = 0.0

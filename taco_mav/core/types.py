@@ -84,7 +84,9 @@ class Estimate:
     t: autopilot time, seconds. xy: ENU metres relative to the origin, shape (2,). theta: heading, ENU radians.
     speed: forward speed, m/s. cov_xy: 2x2 position covariance, m^2. epsilon: IMU error envelope, metres.
     since_fix_s: seconds since the last accepted fix (or since start). sigma_speed: the filter's own 1-sigma of
-    `speed`, m/s (taco+'s speed-error state; NaN where the filter has none, as the paper's).
+    `speed`, m/s (taco+'s speed-error state; NaN where the filter has none, as the paper's). filter_sigma_h: the
+    filter's own horizontal 1-sigma, m, before any calibration of the reported accuracy (what a new Localiser
+    carrying this one on must start from).
     """
 
     t: float
@@ -96,6 +98,7 @@ class Estimate:
     since_fix_s: float = 0.0
     extra: dict = field(default_factory=dict)
     sigma_speed: float = math.nan
+    filter_sigma_h: float = math.nan
 
     @property
     def sigma_h(self) -> float:

@@ -19,11 +19,15 @@ daemon never otherwise uses (issue 31); tests/test_ukf_kernels.py holds the filt
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from taco_mav.core import kernels as _k
 from taco_mav.core.preintegration import wrap_angle as _wrap
+
+if TYPE_CHECKING:
+    from taco_mav.core.params import UkfParams
 
 _EIG_FLOOR = 1e-9
 
@@ -261,3 +265,10 @@ def fix_covariance_reference(theta: float, sigma_fwd: float, sigma_lat: float) -
     c, s = math.cos(theta), math.sin(theta)
     Rot = np.array([[c, -s], [s, c]])
     return Rot @ np.diag([sigma_fwd * sigma_fwd, sigma_lat * sigma_lat]) @ Rot.T
+
+
+def weight_sigmas(u: UkfParams, w: float, anisotropic: bool | None = None) -> tuple[float, float]:
+    """Body-frame fix sigmas (forward, lateral), metres, from the match weight w (Sec. III-F) with the mapping of
+    the UKF parameters `u`; anisotropic: None for u.anisotropic, False for both the mean of the two."""
+    return fix_sigmas(w, u.fix_fwd_num, u.fix_fwd_min_m, u.fix_fwd_max_m, u.fix_lat_num, u.fix_lat_min_m,
+                      u.fix_lat_max_m, u.anisotropic if anisotropic is None else anisotropic)

@@ -245,7 +245,7 @@ class LocaliserAnchor:
         undercut)."""
         est = loc.estimate()
         return self.localiser(t_new, attitude_yaw, (float(est.xy[0]), float(est.xy[1])), est.theta, est.speed,
-                              max(est.sigma_h, loc.filter_sigma_h, self.params.ukf.initial_sigma_xy_m))
+                              max(est.sigma_h, est.filter_sigma_h, self.params.ukf.initial_sigma_xy_m))
 
     def carried(self, loc: Localiser, t_last: float, t_new: float) -> Carried:
         """No IMU from t_last to t_new: the estimate carried on at its speed and heading, its 1-sigma grown
@@ -254,6 +254,6 @@ class LocaliserAnchor:
         speed = est.speed if math.isfinite(est.speed) else 0.0
         d = speed * (t_new - est.t)
         xy = (float(est.xy[0]) + d * math.cos(est.theta), float(est.xy[1]) + d * math.sin(est.theta))
-        sigma = max(stall_sigma(max(est.sigma_h, loc.filter_sigma_h), speed, t_new - t_last),
+        sigma = max(stall_sigma(max(est.sigma_h, est.filter_sigma_h), speed, t_new - t_last),
                     self.params.ukf.initial_sigma_xy_m)
         return Carried(xy, est.theta, speed, sigma, d)

@@ -1,4 +1,4 @@
-"""Camera speed in an offline run (issue 19's measurement, as the daemon takes it in `daemon/motion.py`): every
+"""Camera speed in an offline run (the measurement the daemon takes in `daemon/motion.py`): every
 `interval_s` of IMU time, the ground-plane motion between the drive's frames nearest t - lag - gap and t - lag
 (`cvgl.ground_motion.GroundMotion`) goes to taco+'s `add_ground_motion`. The daemon measures on a worker
 thread; here it is measured at once, so a re-run gives the same numbers. Without it an offline taco+ run on a
@@ -41,12 +41,12 @@ class OfflineMotion:
     def tick(self, loc) -> None:
         """After each IMU sample: record the heading; when a measurement is due, measure and hand it to `loc`
         (taco+)."""
-        self.headings.add(float(loc.t), float(loc.pre.theta))
+        self.headings.add(float(loc.t), float(loc.timeline.pre.theta))
         if loc.t < self._next:
             return
         self._next = loc.t + self.interval_s
         t1 = loc.t - self.lag_s
-        i0, i1 = self._nearest(t1 - self.motion.frame_gap(float(loc.pre.speed), self.gap_s)), self._nearest(t1)
+        i0, i1 = self._nearest(t1 - self.motion.frame_gap(float(loc.timeline.pre.speed), self.gap_s)), self._nearest(t1)
         ta, tb = float(self.times[i0]), float(self.times[i1])
         if tb - ta < 0.5 * MIN_GAP_S or tb > loc.t:
             self.counts["same_frame" if tb - ta < 0.5 * MIN_GAP_S else "future_frame"] += 1

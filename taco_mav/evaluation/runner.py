@@ -216,7 +216,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
             log.warning("drive %s: camera speed off (plus.camera_speed): %s", drive.name, e)
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):
         loc.add_imu(sample)
-        if len(loc.track) > len(reported):  # a frame closed: what the daemon would report now
+        if len(loc.record.track) > len(reported):  # a frame closed: what the daemon would report now
             reported.append(_cov3(loc.estimate().cov_xy))
         dead.add(sample)
         dead_xy[i] = (dead.x, dead.y)
@@ -225,7 +225,7 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
         q = loc.poll_query()
         if q is not None:
             got = (q, GroundFrame(empty, q.capture_t, camera)) if frames is None else \
-                frames.ask(q, loc.filter_estimate().speed)
+                frames.ask(q, loc.estimate().speed)
             if got is None:  # no frame near its capture time (a recording that stopped): asked again later
                 loc.cancel_query(q.query_id)
             else:
@@ -234,23 +234,23 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
             _, qid, results = pending.pop(0)
             loc.add_fix(qid, results)
 
-    track = np.array(loc.track)
+    track = np.array(loc.record.track)
     t = track[:, 0]
     gt = np.array([truth.pose_at(ti) for ti in t])
     smoothed = loc.smoothed() if profile.smoother.enabled else None
     imu_only = np.column_stack([np.interp(t, imu.t, dead_xy[:, 0]), np.interp(t, imu.t, dead_xy[:, 1])])
-    centre_err = [float(np.hypot(*(q.centre - np.array(truth.pose_at(q.capture_t)[:2])))) for q in loc.queries]
+    centre_err = [float(np.hypot(*(q.centre - np.array(truth.pose_at(q.capture_t)[:2])))) for q in loc.record.queries]
     n_frames = len(drive.frame_times) if len(drive.frame_times) else len(t)
     return DriveRun(
         name=drive.name, sequence=drive.sequence, t=t, truth_xy=gt[:, :2], truth_theta=gt[:, 2],
         online_xy=track[:, 1:3], online_theta=track[:, 3], online_var=track[:, 4:7], imu_only_xy=imu_only,
-        smoothed=smoothed, queries=list(loc.queries), outcomes=list(loc.outcomes), frames_available=n_frames,
+        smoothed=smoothed, queries=list(loc.record.queries), outcomes=list(loc.record.outcomes), frames_available=n_frames,
         matcher_s=service.stats.matcher_s, wall_s=time.perf_counter() - wall0, origin_utm=origin,
         utm_epsg=int(drive.utm_epsg), mosaic=str(drive.mosaic) if drive.mosaic else None,
         reported_var=np.array(reported) if len(reported) == len(t) else None,
         extra={"crops_off_map": service.stats.crops_off_map, "search_centre_errors": centre_err, "heading0": th0,
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
-               "lock_events": loc.lock_events,
+               "lock_events": loc.record.lock_events,
                "query_frames": dict(frames.counts) if frames is not None else {},
                "camera_motion": dict(motion.counts) if motion is not None else {}},
     )

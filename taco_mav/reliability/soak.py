@@ -81,16 +81,18 @@ def structure_sizes(daemon: Any, before: frozenset[int] = frozenset()) -> dict[s
     "threads" counts the live threads whose ident is not in `before` (those alive when the run began)."""
     out: dict[str, tuple[int, int | None]] = {}
     st, fx = daemon.stats, daemon.fixes
-    for name, dq in (("stats.imu_to_estimate_s", st.imu_to_estimate_s), ("stats.output_times", st.output_times),
-                     ("fixes.truth", fx._truth)):
+    for name, dq in (("stats.imu_to_estimate_s", st.imu_to_estimate_s), ("stats.output_times", st.output_times)):
         out[name] = (len(dq), dq.maxlen)
+    if daemon.truth is not None:
+        out["truth.poses"] = (len(daemon.truth.poses), daemon.truth.poses.maxlen)
     if fx.service is not None:
         dq = fx.service.stats.per_trigger_s
         out["service.per_trigger_s"] = (len(dq), getattr(dq, "maxlen", None))
     if daemon.loc is not None:
-        h = daemon.loc.history
+        h = daemon.loc.timeline.history
         out["localiser.history"] = (len(h), h.maxlen)
-        out["localiser.track"] = (len(daemon.loc.track), 1)  # record=False keeps only the start pose
+        rec = daemon.loc.record  # the daemon keeps no offline record (record=False)
+        out["localiser.track"] = (0 if rec is None else len(rec.track), 1)
     out["fixes.results_queue"] = (fx._results.qsize(), None)
     out["fixes.stuck_workers"] = (len(fx._stuck), 2)
     out["counter_keys"] = (len(st.fixes) + len(st.dropped) + len(daemon.decoders.rejected), None)

@@ -1,4 +1,4 @@
-"""Real GNSS in the Localiser (issue 14): the `add_gnss` path both estimator modes share, a part the Localiser owns
+"""Real GNSS in the Localiser: the `add_gnss` path both estimator modes share, a part the Localiser owns
 (`loc.gnss`).
 
     out = loc.add_gnss(GnssFix(t, xy, vel_en, sigma_h_m, sigma_v_mps))   # ~5 Hz, between filter frames
@@ -13,10 +13,9 @@ kept on its frame, so a camera fix's rewind and replay applies it again. When th
 was in use, readings waiting for their turn are dropped and those fused after the frame its failing test
 started from are undone (rewind, replay without them).
 
-What "applied" means is the mode's (`Mode.gnss_apply`): paper mode re-anchors (position := the reading,
+What "applied" means is the estimator's (a `GnssCorrection` through its `GnssUpdate`): paper mode re-anchors (position := the reading,
 covariance sigma_h^2, anchor window reset; the preintegrator's position and speed follow; the paper's maths
-untouched), taco+ makes a Kalman update of position, speed error and heading (`PlusMode.gnss_apply`,
-plus/gnss.py), so the speed error, accelerometer bias and compass bias are calibrated before GNSS is lost.
+untouched), taco+ makes a Kalman update of position, speed error and heading (plus/gnss.py), so the speed error, accelerometer bias and compass bias are calibrated before GNSS is lost.
 
 While the GNSS is healthy camera fixes are asked for only every `camera_interval_s` (`camera_check_s` when the
 guard is suspicious): they cross-check the receiver.
@@ -32,7 +31,10 @@ from collections import deque
 
 import numpy as np
 
-from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
+from typing import TYPE_CHECKING
+
+from taco_mav.core.corrections import GnssCorrection
+from taco_mav.core.frames import FixOutcome, FixReason, GnssMeasurement, Tick
 from taco_mav.core.gnss.guard import (
     GnssGuard,
     GuardState,
@@ -42,22 +44,23 @@ from taco_mav.core.gnss.guard import (
 )
 from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.gnss.shadow import Anchor, DeadReckoner, DrSnap
-from taco_mav.core.host import Host
-from taco_mav.core.mode import Mode
+from taco_mav.core.timeline import Timeline
 from taco_mav.core.preintegration import wrap_angle
 from taco_mav.core.types import Estimate, GnssFix, GnssOutcome
 from taco_mav.core.ukf import fix_covariance
 
-Plan = tuple[str, float, np.ndarray]  # a trigger's (reason, forward bias m, body offsets (K, 2) m)
+if TYPE_CHECKING:
+    from taco_mav.core.mode import Estimator, Plan
 
 
 class GnssFusion:
-    """The real-GNSS fusion of the Localiser `host` (see the module docstring): it owns the guard, the guard's dead
-    reckoner and the readings waiting for their turn; it rewinds and replays through the host, and what a
-    reading does to the filter is the host's `mode`'s."""
+    """The real-GNSS fusion on the Localiser's `timeline` (see the module docstring): it owns the guard, the
+    guard's dead reckoner and the readings waiting for their turn; it rewinds and replays through the timeline,
+    and what a reading does to the filter is the estimator's (`serve`)."""
 
-    def __init__(self, host: Host, params: GnssParams, mode: Mode) -> None:
-        self.host, self.p, self.mode = host, params, mode
+    def __init__(self, timeline: Timeline, params: GnssParams) -> None:
+        self.timeline, self.p = timeline, params
+        self.mode: Estimator
         self.guard: GnssGuard | None = None  # made at the first reading
         self._dr: DeadReckoner | None = None
         self._snaps: deque[tuple[int, DrSnap]] = deque()  # (frame node, dead reckoner at its end)
@@ -70,6 +73,10 @@ class GnssFusion:
         self._entry_t = -math.inf  # first accepted reading since the receiver was lost or rejected
         self.fused = 0  # readings fused so far
 
+    def serve(self, estimator: Estimator) -> None:
+        """The estimator whose filter the readings update."""
+        self.mode = estimator
+
     # ------------------------------------------------------------------ the reading
     def add(self, fix: GnssFix) -> GnssOutcome:
         """One real GNSS reading (see the module docstring). Returns what was done: used with reason "fused"
@@ -78,7 +85,7 @@ class GnssFusion:
         "stale" (not after the last reading, or further than max_age_s from the IMU clock); "ignored" (GNSS
         use disabled, or before the first filter frame)."""
         gp = self.p
-        if not gp.enabled or not self.host.history:
+        if not gp.enabled or not self.timeline.history:
             return GnssOutcome(False, "ignored")
         xy = np.asarray(fix.xy, dtype=float).reshape(-1)
         vel = None if fix.vel_en is None else np.asarray(fix.vel_en, dtype=float).reshape(-1)
@@ -86,20 +93,20 @@ class GnssFusion:
                 or not (math.isfinite(fix.sigma_h_m) and fix.sigma_h_m > 0.0)
                 or (vel is not None and (vel.shape != (2,) or not np.all(np.isfinite(vel))))):
             return GnssOutcome(False, "nonfinite")
-        if fix.t <= self._last_t or abs(self.host.t - fix.t) > gp.max_age_s:
+        if fix.t <= self._last_t or abs(self.timeline.t - fix.t) > gp.max_age_s:
             return GnssOutcome(False, "stale")
         self._last_t = fix.t
         if self.guard is None:
             self.guard = GnssGuard(gp)
-            self._dr = DeadReckoner(self.host.t, float(self.host.pre.theta))
-        guard, tick = self.guard, self.host.history[-1]
+            self._dr = DeadReckoner(self.timeline.t, float(self.timeline.pre.theta))
+        guard, tick = self.guard, self.timeline.history[-1]
         guard_prev = guard.t_accepted if guard.t_accepted is not None else -math.inf
         meas, z_now = self._measurement(fix, xy, vel, tick)
         self._sigma_h = math.sqrt(meas.var_xy)
-        dx, dy = self.host.pre.interval_displacement
-        pred = self.host.ukf.x[:2] + np.array([dx, dy])
+        dx, dy = self.timeline.pre.interval_displacement
+        pred = self.timeline.ukf.x[:2] + np.array([dx, dy])
         ref, vref = self._reference(gp.reference_lag_s), self._reference(gp.velocity_lag_s)
-        v = guard.check(self.host.t, z_now, self._sigma_h, pred, self.host.ukf.P[:2, :2].copy(), self._dr.snap(),
+        v = guard.check(self.timeline.t, z_now, self._sigma_h, pred, self.timeline.ukf.P[:2, :2].copy(), self._dr.snap(),
                         None if ref is None else self._anchor(ref), replace=self.mode.gnss_replaces, vel=vel,
                         sigma_v=max(fix.sigma_v_mps if math.isfinite(fix.sigma_v_mps) else 0.0, gp.sigma_v_min_mps),
                         vel_anchor=None if vref is None else self._anchor(vref))
@@ -114,8 +121,8 @@ class GnssFusion:
             return GnssOutcome(False, "rejected", v.nis, v.window_nis, v.innovation_m)
         if v.reaccepted:
             self._event("gnss_accepted", v)
-        if v.reaccepted or self.host.t - guard_prev > gp.gap_s:
-            self._entry_t = self.host.t
+        if v.reaccepted or self.timeline.t - guard_prev > gp.gap_s:
+            self._entry_t = self.timeline.t
         self._pending.append((tick, meas))
         self._flush()
         return GnssOutcome(True, "anchored" if self.mode.gnss_replaces else "fused", v.nis, v.window_nis,
@@ -124,8 +131,8 @@ class GnssFusion:
     def _measurement(self, fix: GnssFix, xy: np.ndarray, vel: np.ndarray | None,
                           tick: Tick) -> tuple[GnssMeasurement, np.ndarray]:
         """The reading referred to the latest frame, and its position carried to the IMU's now (ENU m)."""
-        gp, pre = self.p, self.host.pre
-        lead = self.host.t - fix.t  # the reading is this much older than the IMU's now
+        gp, pre = self.p, self.timeline.pre
+        lead = self.timeline.t - fix.t  # the reading is this much older than the IMU's now
         z_now = xy + pre.speed * lead * np.array([math.cos(pre.theta), math.sin(pre.theta)])
         dx, dy = pre.interval_displacement
         z_frame = z_now - np.array([dx, dy])
@@ -136,7 +143,7 @@ class GnssFusion:
             ground = float(np.hypot(*vel))
             if ground >= gp.min_speed_mps:
                 course = math.atan2(vel[1], vel[0])
-                if self.host.p.imu.allow_reverse and abs(wrap_angle(course - pre.theta)) > 0.5 * math.pi:
+                if self.timeline.p.imu.allow_reverse and abs(wrap_angle(course - pre.theta)) > 0.5 * math.pi:
                     ground, course = -ground, wrap_angle(course + math.pi)
                 sv = max(fix.sigma_v_mps if math.isfinite(fix.sigma_v_mps) else 0.0, gp.sigma_v_min_mps)
                 # at the frame end: less what the preintegrator gained since (its speed there was
@@ -152,44 +159,31 @@ class GnssFusion:
         """Fuse the accepted readings older than fuse_delay_s, in one rewind and replay (at most every
         fuse_interval_s)."""
         gp = self.p
-        if not self._pending or self.host.t - self._flush_t < gp.fuse_interval_s - 1e-9:
+        if not self._pending or self.timeline.t - self._flush_t < gp.fuse_interval_s - 1e-9:
             return
         due = []
-        while self._pending and self._pending[0][1].t <= self.host.t - gp.fuse_delay_s + 1e-9:
+        while self._pending and self._pending[0][1].t <= self.timeline.t - gp.fuse_delay_s + 1e-9:
             due.append(self._pending.popleft())
-        due = [(h, m) for h, m in due if any(h is k for k in self.host.history)]  # frames still in the history
+        due = [(h, m) for h, m in due if any(h is k for k in self.timeline.history)]  # frames still in the history
         if not due:
             return
-        self._flush_t = self.host.t
-        for h, m in due:
-            h.gnss.append(m)
-        base = due[0][0]
-        self.host.ukf.set_state(base.x, base.P)
-        for m in (m for h, m in due if h is base):
-            self.mode.gnss_apply(base, m)
-        self.host.settle(base)
-        self.host.replay_after(base)
+        self._flush_t = self.timeline.t
+        self.timeline.correct_batch(due[0][0], [(h, GnssCorrection(m, self.mode)) for h, m in due])
         self.fused += len(due)
-        self.mode.gnss_fused_live(due[-1][0], due[-1][1])
-
-    def replay(self, tick: Tick) -> None:
-        """A replayed frame applies its GNSS measurements again (called at the end of `_advance`)."""
-        for m in tick.gnss:
-            self.mode.gnss_apply(tick, m)
-        self.host.settle(tick)
+        self.mode.gnss_fused(due[-1][0], due[-1][1])
 
     # ------------------------------------------------------------------ the guard's inputs
     def on_imu(self, t: float, dt: float) -> None:
         """One IMU step for the guard's dead reckoner (called from `add_imu`)."""
         if self._dr is not None:
-            self._dr.add(t, dt, self.host.pre.accel_fwd, self.host.pre.theta)
+            self._dr.add(t, dt, self.timeline.pre.accel_fwd, self.timeline.pre.theta)
 
     def on_frame(self, tick: Tick) -> None:
         """A new frame: keep the dead reckoner's snapshot at its end, and fuse what is due (from `_frame`)."""
         if self._dr is None:
             return
         self._snaps.append((tick.node, self._dr.snap()))
-        oldest = self.host.history[0].node
+        oldest = self.timeline.history[0].node
         while self._snaps and self._snaps[0][0] < oldest:
             self._snaps.popleft()
         self._flush()
@@ -209,7 +203,7 @@ class GnssFusion:
         # keeps; else P plus the receiver's bias.
         gp, sh = self.p, self._sigma_h
         bias_var = receiver_variances(sh, gp)[1]
-        tied = any(h.gnss for h in self.host.history if tick.t - gp.gap_s <= h.t <= tick.t)
+        tied = any(h.gnss for h in self.timeline.history if tick.t - gp.gap_s <= h.t <= tick.t)
         cov = tick.P[:2, :2] + (-bias_var if tied else bias_var) * np.eye(2)
         w, V = np.linalg.eigh(0.5 * (cov + cov.T))
         cov = (V * np.maximum(w, filter_offset_variance(sh, gp, self.mode.gnss_replaces))) @ V.T
@@ -224,10 +218,10 @@ class GnssFusion:
         in_use = self.guard is not None and self.guard.state is GuardState.OK
         since = self._entry_t if in_use else -math.inf
         best = None
-        for h in self.host.history:
+        for h in self.timeline.history:
             if first is None or h.node < first or h.t < since - 1e-6:
                 continue
-            if best is None or h.t <= self.host.t - lag + 1e-6:
+            if best is None or h.t <= self.timeline.t - lag + 1e-6:
                 best = h
             else:
                 break
@@ -236,13 +230,13 @@ class GnssFusion:
     def on_fix_outcome(self, outcome: FixOutcome) -> None:
         """A camera fix answered: cross-check it with the GNSS readings around its capture (from `_log`)."""
         g = self.guard
-        if g is None or outcome.xy is None or outcome.reason not in ("accepted", "innovation_gate"):
+        if g is None or outcome.xy is None or outcome.reason not in (FixReason.ACCEPTED, FixReason.INNOVATION_GATE):
             return
-        tick = next((h for h in self.host.history if abs(h.t - outcome.capture_t) < 1e-6), None)
-        anchor = self._anchor(self.host.history[-1]) if self.host.history else None
+        tick = next((h for h in self.timeline.history if abs(h.t - outcome.capture_t) < 1e-6), None)
+        anchor = self._anchor(self.timeline.history[-1]) if self.timeline.history else None
         if anchor is None:
             return
-        theta = float(tick.x[2]) if tick is not None else float(self.host.ukf.x[2])
+        theta = float(tick.x[2]) if tick is not None else float(self.timeline.ukf.x[2])
         R = fix_covariance(theta, max(outcome.sigma_fwd, 1e-3), max(outcome.sigma_lat, 1e-3))
         snap = self._snap(tick) if tick is not None else None
         g.camera_check(outcome.capture_t, np.asarray(outcome.xy, dtype=float), R, anchor, snap)
@@ -251,14 +245,10 @@ class GnssFusion:
     def _rollback(self, base: Tick) -> None:
         """Undo the GNSS fused after frame `base` (the guard's reference): rewind there and replay without
         them (camera fixes stay)."""
-        later = [h for h in self.host.history if h.t > base.t]
-        if not any(h.gnss for h in later):
+        if not self.timeline.forget(base, Tick.drop_gnss):
             return
-        for h in later:
-            h.gnss = []
-        self.host.ukf.set_state(base.x, base.P)
-        self.host.replay_after(base)
-        self.mode.gnss_after_rollback()
+        if self.mode.aids is not None:
+            self.mode.aids.after_gnss_rollback()
         if self.guard is not None:
             self.guard.hold_anchor = self._anchor(base)
 
@@ -268,15 +258,15 @@ class GnssFusion:
         every camera_interval_s (camera_check_s while the guard is suspicious), and only then. From
         `_maybe_trigger`."""
         g, gp = self.guard, self.p
-        if g is not None and g.healthy_at(self.host.t):
-            since = self.host.t - self._query_t
+        if g is not None and g.healthy_at(self.timeline.t):
+            since = self.timeline.t - self._query_t
             if since < gp.camera_interval_s and not (g.suspect and since >= gp.camera_check_s):
                 return None
             # due whether or not the mode's trigger wants a fix (fused readings keep its covariance small): one
             # crop where the filter is, unless the trigger planned a search
             plan = ("gnss_check", plan[1], plan[2]) if plan is not None else ("gnss_check", 0.0, np.zeros((1, 2)))
         if plan is not None:
-            self._query_t = self.host.t
+            self._query_t = self.timeline.t
         return plan
 
     # ------------------------------------------------------------------ outputs
@@ -288,7 +278,7 @@ class GnssFusion:
     @property
     def in_use(self) -> bool:
         """A reading accepted within the guard's gap_s of now."""
-        return self.guard is not None and self.guard.healthy_at(self.host.t)
+        return self.guard is not None and self.guard.healthy_at(self.timeline.t)
 
     def report(self, est: Estimate) -> Estimate:
         """The reported estimate while a receiver is in use: its horizontal 1-sigma at least the guard's camera
@@ -304,7 +294,7 @@ class GnssFusion:
         return out
 
     def _event(self, kind: str, v: GuardVerdict) -> None:
-        self._events.append((self.host.t, kind, v.detail))
+        self._events.append((self.timeline.t, kind, v.detail))
 
 
-__all__ = ["GnssFusion", "GnssMeasurement", "Plan"]
+__all__ = ["GnssFusion"]

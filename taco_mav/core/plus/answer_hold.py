@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from taco_mav.core.host import Host
+from taco_mav.core.timeline import Timeline
 from taco_mav.core.plus.lock import LockMonitor, LockState
 from taco_mav.core.plus.noise import VarianceFactor
 from taco_mav.core.plus.params import PlusParams
@@ -26,12 +26,12 @@ Held = tuple[np.ndarray, float, float, int, "tuple[float, float] | None"]
 
 
 class AnswerHold:
-    """Held answers, failures and lock settling for the Localiser `host`, with its `lock`, the reported accuracy's
+    """Held answers, failures and lock settling for the Localiser's `timeline`, with its `lock`, the reported accuracy's
     `report_factor` and the safety `guard`."""
 
-    def __init__(self, host: Host, q: PlusParams, lock: LockMonitor, report_factor: VarianceFactor,
+    def __init__(self, timeline: Timeline, q: PlusParams, lock: LockMonitor, report_factor: VarianceFactor,
                  guard: SafetyGuard) -> None:
-        self.host, self.q, self.lock, self.report_factor, self.guard = host, q, lock, report_factor, guard
+        self.timeline, self.q, self.lock, self.report_factor, self.guard = timeline, q, lock, report_factor, guard
         self.held: list[Held] = []  # newest last (jump_confirm_k, recover_confirm)
         self.misses_in_row = 0  # consecutive answered triggers without a fix (off-map answers aside)
         self.last_answer_weak = False  # the last answer had nothing usable (plus.trigger_retry_s asks sooner)
@@ -42,7 +42,7 @@ class AnswerHold:
 
     def inflate(self, sigma_m: float) -> None:
         """Lock lost: widen the position uncertainty by at least lost_sigma_min_m (and sigma_m), metres."""
-        self.host.widen(max(self.q.lost_sigma_min_m, sigma_m))
+        self.timeline.widen(max(self.q.lost_sigma_min_m, sigma_m))
 
     def accepted(self) -> None:
         """A fix was applied: the runs of failures and the reported floor start again."""
@@ -140,13 +140,13 @@ class AnswerHold:
             self._gate_innovs = (self._gate_innovs + [(np.array(innov, dtype=float), odo)])[-self.q.guard_gate_misses:]
         else:
             self._gate_innovs = []
-        if self.lock.on_failure(self.host.t, reason):
+        if self.lock.on_failure(self.timeline.t, reason):
             self.inflate(0.5 * innovation_m)
         elif was_lost:
-            self.host.widen(0.5 * self.q.grid_spacing_m)
+            self.timeline.widen(0.5 * self.q.grid_spacing_m)
         elif self.q.guard and self._gate_misses >= self.q.guard_gate_misses and self._gate_misses_agree():
             self.report_floor_m = max(self.report_floor_m, 0.5 * innovation_m)
-            self.lock.note(self.host.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
+            self.lock.note(self.timeline.t, "fixes_disagree", f"{self._gate_misses} fixes in a row {innovation_m:.1f} m "
                            "away: accuracy widened")
         if self.q.guard and self.misses_in_row >= self.q.guard_gate_misses:
             self.guard.distrust_zupt()
@@ -168,22 +168,22 @@ class AnswerHold:
         1-sigma floor on the position uncertainty until `confirm_fixes` later fixes agree with it to within
         3 fix sigmas; a confirming fix that disagrees restarts the count and keeps the larger floor."""
         if state is LockState.LOST:
-            self.lock.on_relocalised(self.host.t, jump)
+            self.lock.on_relocalised(self.timeline.t, jump)
             self._floor_m = 0.5 * jump
             self.report_factor.reset()  # what the fixes said of the old lock says nothing of the new one
         elif state is LockState.CONFIRMING:
             if jump <= 3.0 * max(s_f, s_l):
-                self.lock.on_accepted(self.host.t)
+                self.lock.on_accepted(self.timeline.t)
             else:
                 self.lock.confirmations = 0
                 self._floor_m = max(self._floor_m, 0.5 * jump)
         else:
-            self.lock.on_accepted(self.host.t)
+            self.lock.on_accepted(self.timeline.t)
         if self.lock.state is LockState.LOCKED:
             self._floor_m = 0.0
         elif self._floor_m > 0.0:
-            x, P = self.host.ukf.get_state()
+            x, P = self.timeline.ukf.get_state()
             lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
             if lo < self._floor_m**2:
                 P[:2, :2] += (self._floor_m**2 - lo) * np.eye(2)
-                self.host.ukf.set_state(x, P)
+                self.timeline.ukf.set_state(x, P)

@@ -12,7 +12,8 @@ import math
 from collections.abc import Callable
 
 from taco_mav.core.frames import Tick
-from taco_mav.core.host import Host
+from taco_mav.core.gnss.fusion import GnssFusion
+from taco_mav.core.timeline import Timeline
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.plus.safety_guard import SafetyGuard
 from taco_mav.core.plus.speed_check import SpeedCheck
@@ -21,12 +22,13 @@ from taco_mav.core.types import GnssFix, GnssOutcome
 
 
 class CameraSpeed:
-    """The camera's speed for the Localiser `host`: `feedback` moves the speed error into the preintegrator
+    """The camera's speed for the Localiser's `timeline`: `feedback` moves the speed error into the preintegrator
     (PlusMode.feedback); stops (`zero`) and the safety guard (`guard`) hear what the camera saw."""
 
-    def __init__(self, host: Host, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
+    def __init__(self, timeline: Timeline, gnss: GnssFusion, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
                  feedback: Callable[[Tick], None]) -> None:
-        self.host, self.q, self.zero, self.guard, self._feedback = host, q, zero, guard, feedback
+        self.timeline, self.gnss, self.q, self.zero, self.guard = timeline, gnss, q, zero, guard
+        self._feedback = feedback
         self.speed_check = SpeedCheck()  # GNSS ground speed against the camera's (spoofing, speed_check.py)
         self._gated = 0  # camera speed measurements held off in a row
         self._suspect, self._agree = False, 0  # camera locked onto something else
@@ -60,7 +62,7 @@ class CameraSpeed:
             return "stale"
         var = 2.0 * (sigma_m / dt) ** 2 + (self.q.camera_speed_scale_sigma * v_cam) ** 2
         z = v_cam - v_est
-        P33 = float(self.host.ukf.P[3, 3])
+        P33 = float(self.timeline.ukf.P[3, 3])
         if self._suspect:  # locked onto something else: used again once it agrees twice on its own noise
             if z * z > 10.83 * var and not self._camera_sides_with_imu(v_cam, v_est):
                 self._agree = 0
@@ -79,15 +81,15 @@ class CameraSpeed:
                     self._suspect, self._agree = True, 0
             return "gated"
         self._gated = 0
-        before = self.host.ukf.x[:2].copy()
-        self.host.ukf.update_speed_error(float(self.host.ukf.x[3]) + z, math.sqrt(var))
+        before = self.timeline.ukf.x[:2].copy()
+        self.timeline.ukf.update_speed_error(float(self.timeline.ukf.x[3]) + z, math.sqrt(var))
         if self.guard.unaided.started:  # the position moved with the speed (their correlation): not dead reckoning
-            self.guard.unaided.x += float(self.host.ukf.x[0] - before[0])
-            self.guard.unaided.y += float(self.host.ukf.x[1] - before[1])
-        if self.host.history:  # a rewind to the last frame (a late fix) starts from the updated state
-            self.host.history[-1].x, self.host.history[-1].P = self.host.ukf.get_state()
-            self._feedback(self.host.history[-1])
-        self.zero.seen(math.sqrt(max(float(self.host.ukf.P[3, 3]), 0.0)))
+            self.guard.unaided.x += float(self.timeline.ukf.x[0] - before[0])
+            self.guard.unaided.y += float(self.timeline.ukf.x[1] - before[1])
+        if self.timeline.history:  # a rewind to the last frame (a late fix) starts from the updated state
+            self.timeline.history[-1].x, self.timeline.history[-1].P = self.timeline.ukf.get_state()
+            self._feedback(self.timeline.history[-1])
+        self.zero.seen(math.sqrt(max(float(self.timeline.ukf.P[3, 3]), 0.0)))
         return "used"
 
     def _camera_sides_with_imu(self, v_cam: float, v_est: float) -> bool:
@@ -110,7 +112,7 @@ class CameraSpeed:
     def _check_gnss_speed(self, t: float, v_cam: float, sigma_white: float) -> None:
         """The camera's speed against the receiver's (speed_check.py); a receiver whose speed departs from the
         camera's is flagged to the GNSS guard (rejected at its next reading, held off while it disagrees)."""
-        g = self.host.gnss.guard
+        g = self.gnss.guard
         if g is None:
             return
         trusted = g.healthy_at(t) and not g.suspect
@@ -121,12 +123,12 @@ class CameraSpeed:
     def _speed_at(self, t: float) -> float | None:
         """The estimate's forward speed (m/s) at autopilot time t, interpolated between history frames; None
         before the history."""
-        h = self.host.history
-        if not h or t < h[0].t - self.host.frame_dt:
+        h = self.timeline.history
+        if not h or t < h[0].t - self.timeline.frame_dt:
             return None
         speeds = [(k.t, k.inc.speed_end + k.dv_fed) for k in h]
         if t >= speeds[-1][0]:
-            return float(self.host.pre.speed)
+            return float(self.timeline.pre.speed)
         for (ta, va), (tb, vb) in zip(speeds, speeds[1:]):
             if ta <= t <= tb:
                 return va + (vb - va) * (t - ta) / max(tb - ta, 1e-9)

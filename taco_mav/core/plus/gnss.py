@@ -1,6 +1,6 @@
-"""taco+'s use of a real GNSS (issue 14; the measurement and its checks are `gnss/fusion.py`): a Kalman update of
-position, speed and course on the taco+ state, instead of the paper mode's re-anchoring. A part of `PlusMode`;
-the GNSS fusion calls it through the mode's gnss_* hooks.
+"""taco+'s use of a real GNSS (the measurement and its checks are `gnss/fusion.py`): a Kalman update of position,
+speed and course on the taco+ state, instead of the paper mode's re-anchoring. A part of `PlusMode`, applied
+through the timeline as a `GnssCorrection`.
 
 World frame ENU metres, speeds m/s, angles radians (ENU, CCW).
 """
@@ -14,24 +14,24 @@ import numpy as np
 
 from taco_mav.core.frames import GnssMeasurement, Tick
 from taco_mav.core.gnss.guard import receiver_variances
-from taco_mav.core.host import Host
+from taco_mav.core.timeline import Timeline
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.plus.safety_guard import SafetyGuard
 from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.preintegration import wrap_angle
-from taco_mav.core.ukf import joseph_update
+from taco_mav.core.ukf import PlanarUkf, joseph_update
 
 
-class GnssUpdate:
-    """Real-GNSS updates on the taco+ filter of the Localiser `host`: `feedback` moves the speed error into the
+class KalmanGnss:
+    """Real-GNSS updates on the taco+ filter of the Localiser's `timeline`: `feedback` moves the speed error into the
     preintegrator (PlusMode.feedback); a speed reading is a speed observation for stops (`zero`); the safety
     `guard` restarts its IMU-only track after a batch."""
 
-    def __init__(self, host: Host, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
+    def __init__(self, timeline: Timeline, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
                  feedback: Callable[[Tick], None]) -> None:
-        self.host, self.q, self.zero, self.guard, self._feedback = host, q, zero, guard, feedback
+        self.timeline, self.q, self.zero, self.guard, self._feedback = timeline, q, zero, guard, feedback
 
-    def apply(self, tick: Tick, m: GnssMeasurement) -> None:
+    def apply(self, ukf: PlanarUkf, tick: Tick, m: GnssMeasurement) -> None:
         """Kalman update at `tick`: position (isotropic sigma_h) and, when the reading has a speed (above
         gnss.min_speed_mps), the speed error x[3] (the ground speed at the frame end against the preintegrated
         speed there, m/s) and the heading x[2] (the course; as the compass reads theta + beta this makes the
@@ -39,7 +39,7 @@ class GnssUpdate:
         bias share of sigma_h, see gnss_guard) stays in the position covariance as a floor: averaging readings
         does not remove it, and the reported accuracy, the camera gates and the hand-over to dead reckoning must
         know it."""
-        x, P = self.host.ukf.get_state()
+        x, P = ukf.get_state()
         rows, innov, var = [0, 1], [m.xy[0] - x[0], m.xy[1] - x[1]], [m.var_xy, m.var_xy]
         if m.speed is not None:
             rows.append(3)
@@ -53,18 +53,18 @@ class GnssUpdate:
         H[np.arange(len(rows)), rows] = 1.0
         x, P, _ = joseph_update(x, P, H, np.array(innov), np.diag(var))
         x[2] = wrap_angle(x[2])
-        floor = receiver_variances(math.sqrt(m.var_xy), self.host.p.gnss)[1]
+        floor = receiver_variances(math.sqrt(m.var_xy), self.timeline.p.gnss)[1]
         lo = float(np.linalg.eigvalsh(P[:2, :2]).min())
         if lo < floor:
             P[:2, :2] += (floor - lo) * np.eye(2)
-        self.host.ukf.set_state(x, P)
+        ukf.set_state(x, P)
 
     def fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch of readings: feed the speed error back, as after an accepted fix."""
-        if self.host.history:
-            self._feedback(self.host.history[-1])
+        if self.timeline.history:
+            self._feedback(self.timeline.history[-1])
         if m.speed is not None:
-            self.zero.seen(math.sqrt(max(float(self.host.ukf.P[3, 3]), 0.0)))
+            self.zero.seen(math.sqrt(max(float(self.timeline.ukf.P[3, 3]), 0.0)))
         if self.q.guard:
             self.guard.reset()
 
@@ -79,7 +79,7 @@ class GnssUpdate:
 
     def after_rollback(self) -> None:
         """The replay left the undone speed corrections in the speed error: feed it back."""
-        if self.host.history:
-            self._feedback(self.host.history[-1])
+        if self.timeline.history:
+            self._feedback(self.timeline.history[-1])
         if self.q.guard:
             self.guard.reset()

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 from taco_mav.core.frames import Tick
-from taco_mav.core.host import Host
+from taco_mav.core.timeline import Timeline
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.plus.safety_guard import SafetyGuard
 from taco_mav.core.plus.stationary import StationaryDetector
@@ -23,11 +23,11 @@ from taco_mav.core.types import ImuSample
 
 
 class ZeroVelocity:
-    """Stops for the Localiser `host`: the stationary detector, the last speed observation, the autopilot's drive
+    """Stops for the Localiser's `timeline`: the stationary detector, the last speed observation, the autopilot's drive
     command and the camera's motion veto; the safety guard's hold-off (`guard`)."""
 
-    def __init__(self, host: Host, q: PlusParams, guard: SafetyGuard, t0: float) -> None:
-        self.host, self.q, self.guard = host, q, guard
+    def __init__(self, timeline: Timeline, q: PlusParams, guard: SafetyGuard, t0: float) -> None:
+        self.timeline, self.q, self.guard = timeline, q, guard
         self.still = StationaryDetector(q.zupt_window_s, q.zupt_gyro_max_rps, q.zupt_accel_std_max_mps2,
                                         q.zupt_accel_mean_max_mps2)
         self.active = False  # the last frame had a zero-velocity update
@@ -50,35 +50,30 @@ class ZeroVelocity:
 
     def seen(self, sigma_mps: float) -> None:
         """The speed was just observed (a stop, a fix) with this 1-sigma, m/s."""
-        self._seen_t, self._seen_sigma = self.host.t, sigma_mps
+        self._seen_t, self._seen_sigma = self.timeline.t, sigma_mps
 
     def stopped_on_command(self) -> bool:
         """The autopilot recently said it does not drive (within drive_command_timeout_s)."""
         d = self._drive
-        return d is not None and not d[1] and self.host.t - d[0] <= self.q.drive_command_timeout_s
+        return d is not None and not d[1] and self.timeline.t - d[0] <= self.q.drive_command_timeout_s
 
     def _driving(self) -> bool:
         """The autopilot drives (a recent drive command), or the camera saw the ground move."""
-        d, t = self._drive, self.host.t
+        d, t = self._drive, self.timeline.t
         return (d is not None and d[1] and t - d[0] <= self.q.drive_command_timeout_s
                 or t <= self._camera_moving_until)
 
-    def decide(self, tick: Tick) -> None:
-        """Whether the new frame `tick` is a stop (`tick.stationary`, see the module docstring)."""
-        host, q = self.host, self.q
-        tau = max(host.t - self._seen_t, 0.0)
-        drift = (math.sqrt(max(float(host.ukf.P[4, 4]), 0.0)) + q.imu_accel_sigma_mps2) * tau
+    def decide(self) -> bool:
+        """Whether the new frame is a stop (see the module docstring): then true speed 0 at its end."""
+        tl, q = self.timeline, self.q
+        tau = max(tl.t - self._seen_t, 0.0)
+        drift = (math.sqrt(max(float(tl.ukf.P[4, 4]), 0.0)) + q.imu_accel_sigma_mps2) * tau
         gate = q.zupt_speed_max_mps + 3.0 * (self._seen_sigma + drift)
-        bias = float(host.ukf.x[4])
-        tick.stationary = bool(q.zupt and abs(host.pre.speed) <= gate and host.t >= self.guard.zupt_holdoff_until
-                               and not self._driving() and self.still.still(bias))
-        if tick.stationary:
+        bias = float(tl.ukf.x[4])
+        stop = bool(q.zupt and abs(tl.pre.speed) <= gate and tl.t >= self.guard.zupt_holdoff_until
+                    and not self._driving() and self.still.still(bias))
+        if stop:
             self.seen(q.zupt_sigma_mps)
             self.guard.zupt_since_reset = True
-        self.active = tick.stationary
-
-    def update(self, tick: Tick) -> None:
-        """A stop's update of the speed error (new or replayed frame): true speed 0, so dv = -(the preintegrated
-        speed at the frame end)."""
-        if tick.stationary:
-            self.host.ukf.update_speed_error(-tick.inc.speed_end, self.q.zupt_sigma_mps)
+        self.active = stop
+        return stop
