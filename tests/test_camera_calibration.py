@@ -288,8 +288,8 @@ def test_fix_pipeline_undistorts_a_calibrated_world_camera(world) -> None:
     _, _, cam_cfg, smap = world
     folder = Path(cam_cfg.calibration).parent
     profile = profile_from_dict({"matcher": "classical", "camera": {"calibration": cam_cfg.calibration}})
-    pipe = FixPipeline(profile, DaemonOptions(connect="udpin:127.0.0.1:1", camera=f"world:{folder}"), ClockMap(),
-                       Counters(), lambda sev, text, key: None)
+    pipe = FixPipeline(profile=profile, options=DaemonOptions(connect="udpin:127.0.0.1:1", camera=f"world:{folder}"),
+                       clockmap=ClockMap(), stats=Counters(), status=lambda sev, text, key: None)
     pipe.open(EventLog(None))
     pipe.start()
     try:
@@ -298,7 +298,7 @@ def test_fix_pipeline_undistorts_a_calibrated_world_camera(world) -> None:
         e, n = WEST + 160.0, NORTH - 150.0
         lat, lon = proj.to_latlon(e, n)
         yaw = 0.4
-        pipe.on_pose(5.0, SimPose(lat, lon, yaw), None)
+        pipe.on_pose(5.0, SimPose(lat, lon, yaw))
         theta = math.pi / 2 - yaw + float(proj.grid_convergence(lat, lon))
         q = FixQuery(1, 5.0, np.zeros(2), theta, np.zeros((1, 2)), np.zeros((1, 2)), 1.0)
         frame = pipe._frame_fetcher(q)()

@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import ardupilotmega as apm
 from taco_mav.config import Estimator, load_profile, profile_from_dict, replace_in
 from taco_mav.daemon.daemon import Daemon, DaemonOptions
 from taco_mav.sim import Simulator
+from taco_mav.sim.clock import SimClock
 from tests.sim_helpers import free_udp_port
 
 GNSS_EVENTS = ("gnss_lost", "gnss_back", "gnss_rejected", "gnss_accepted_again", "start_from_gnss")
@@ -323,20 +324,20 @@ def test_autopilot_position_far_from_the_origin_is_no_start() -> None:
     """PX4 sends GLOBAL_POSITION_INT thousands of km from its EKF origin before EKF2 has a global position (seen
     on SIH: 5339 km): refused (counted), the start keeps waiting; a plausible one, moving, then places the start.
     The handlers are a never-started daemon's, given pymavlink-encoded messages."""
-    now = [100.0]
-    daemon = Daemon(load_profile("ardupilot_rover"), DaemonOptions(connect="udpin:127.0.0.1:0"),
-                    clock=lambda: now[0])
+    clock = SimClock(boot_offset_s=100.0)
+    clock.hold()  # reads 100.0 s throughout
+    daemon = Daemon(load_profile("ardupilot_rover"), DaemonOptions(connect="udpin:127.0.0.1:0"), clock=clock)
     mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
     lat, lon = 47.397743, 8.545594
     daemon.origins.on_origin_message(mav.gps_global_origin_encode(int(lat * 1e7), int(lon * 1e7), 488_900, 0), 0.0)
-    assert daemon.origin is not None and daemon.anchor.holding(now[0])
+    assert daemon.origin is not None and daemon.anchor.holding(clock())
     daemon.origins.on_position(mav.global_position_int_encode(6000, 2_000_000, -40_000_000, 0, 0, 0, 0, 0, 0), 0.0)
     assert daemon.decoders.rejected["GLOBAL_POSITION_INT:far_from_origin"] == 1
-    assert daemon.anchor.holding(now[0]) and daemon.anchor.start_source is None
+    assert daemon.anchor.holding(clock()) and daemon.anchor.start_source is None
     north = lat + 40.0 / 111_320.0  # 40 m north, driving north at 3 m/s
     daemon.origins.on_position(mav.global_position_int_encode(6200, int(north * 1e7), int(lon * 1e7), 488_900, 0,
                                                               300, 0, 0, 0), 0.0)
     a = daemon.anchor
-    assert not a.holding(now[0]) and a.start_source == "autopilot"
+    assert not a.holding(clock()) and a.start_source == "autopilot"
     assert a.start_xy[1] == pytest.approx(40.0, abs=0.5) and abs(a.start_xy[0]) < 0.5
     assert a.start_speed == pytest.approx(3.0) and a.start_sigma == 3.0 and a.start_t == pytest.approx(6.2)

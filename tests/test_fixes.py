@@ -21,8 +21,8 @@ def _answer(query_id: int, capture_t: float, generation: int) -> WorkResult:
 
 def _pipeline(latency_s: float) -> FixPipeline:
     opts = DaemonOptions(connect="udpin:127.0.0.1:1", matcher_latency_s=latency_s)
-    return FixPipeline(profile_from_dict({"matcher": "emulator"}), opts, ClockMap(), Counters(),
-                       lambda sev, text, key: None)
+    return FixPipeline(profile=profile_from_dict({"matcher": "emulator"}), options=opts, clockmap=ClockMap(),
+                       stats=Counters(), status=lambda sev, text, key: None)
 
 
 def test_answers_held_on_the_autopilot_clock() -> None:

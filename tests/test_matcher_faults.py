@@ -81,6 +81,7 @@ class HangingMatcher:
     """Never answers (until released): a GPU driver deadlock, say."""
 
     name = "hang"
+    needs_true_pose = True  # never looks at a frame: runs without a camera
 
     def __init__(self) -> None:
         self.release = threading.Event()
@@ -119,6 +120,7 @@ class WeakMatcher:
     """Always answers, never confidently (w = 0.05): a matcher looking at the wrong place."""
 
     name = "weak"
+    needs_true_pose = True  # never looks at a frame: runs without a camera
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         return [MatchResult(np.eye(2), np.array([3.0, -2.0]), 0.05) for _ in crops]

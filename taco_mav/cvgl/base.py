@@ -18,14 +18,18 @@ reference point; nothing else does.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.core.types import MatchResult
 
-__all__ = ["Crop", "GroundFrame", "Matcher", "MatchResult"]
+__all__ = ["Crop", "GroundFrame", "Matcher", "MatchResult", "TruthFn"]
+
+TruthFn = Callable[[float], tuple[float, float, float]]
+"""truth(t) -> (E, N, theta): the true absolute UTM metres and ENU heading (rad) of the vehicle reference point at
+time t (s), for a matcher that answers from the true pose (`Matcher.needs_true_pose`)."""
 
 
 @dataclass(frozen=True)
@@ -53,9 +57,12 @@ class GroundFrame:
 
 
 class Matcher(Protocol):
-    """Anything that localises one ground frame against K heading-up crops."""
+    """Anything that localises one ground frame against K heading-up crops. needs_true_pose: the matcher draws its
+    answers from the simulator's true pose (the emulator, built with a `TruthFn`) and never looks at the
+    frame's or the crops' pixels, so it needs neither a camera nor a map; False for matchers that see images."""
 
     name: str
+    needs_true_pose: bool
 
     def match(self, frame: GroundFrame, crops: Sequence[Crop]) -> list[MatchResult]:
         """One MatchResult per crop, in order."""

@@ -122,6 +122,7 @@ class ClassicalMatcher:
     """Matcher protocol implementation (`taco_mav.cvgl.base.Matcher`) for CPU-only use and for tests."""
 
     name = "classical"
+    needs_true_pose = False
 
     def __init__(self, cfg: ClassicalMatcherConfig, camera: GroundCamera, *, descriptor: str | None = None,
                  masks: MaskOptions | None = None) -> None:

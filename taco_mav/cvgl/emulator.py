@@ -39,17 +39,15 @@ import enum
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from taco_mav.config import EmulatorConfig
 from taco_mav.core.types import MatchResult
-from taco_mav.cvgl.base import Crop, GroundFrame
+from taco_mav.cvgl.base import Crop, GroundFrame, TruthFn
 from taco_mav.errors import ConfigError
 from taco_mav.geo import wrap_angle as _wrap
-
-TruthFn = Callable[[float], tuple[float, float, float]]
 
 
 class Outcome(enum.Enum):
@@ -147,6 +145,7 @@ class EmulatorMatcher:
     point, body (forward, left) metres (profile camera.position_frd_m as (x, -y))."""
 
     name = "emulator"
+    needs_true_pose = True
 
     def __init__(self, cfg: EmulatorConfig, truth: TruthFn, cross_area: bool = False, seed: int | None = None,
                  lever_fwd_left: tuple[float, float] = (0.0, 0.0)) -> None:

@@ -1,43 +1,62 @@
 """Matcher factory by profile name: "classical" (CPU), "emulator" (FG2 statistics, needs truth), "fg2" (torch).
 
-Implementations are imported lazily so that, e.g., torch is only needed when the fg2 matcher is asked for.
+Implementations are imported lazily so that, e.g., torch is only needed when the fg2 matcher is asked for (the
+fg2 module itself imports torch only when a matcher is built, so asking a class what it needs loads no torch).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
+import importlib
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import MATCHERS, Profile, frd_fwd_left
-from taco_mav.cvgl.base import Matcher
+from taco_mav.cvgl.base import Matcher, TruthFn
 from taco_mav.errors import ConfigError, MatcherError
 
-if TYPE_CHECKING:  # the emulator module loads only for the emulator (a vehicle's run never needs it)
-    from taco_mav.cvgl.emulator import TruthFn
+__all__ = ["MATCHERS", "make_matcher", "needs_true_pose"]
 
-__all__ = ["MATCHERS", "make_matcher"]
+# profile name -> (module, class) of each matcher, imported when asked for
+_CLASSES: dict[str, tuple[str, str]] = {"classical": ("taco_mav.cvgl.classical", "ClassicalMatcher"),
+                                        "emulator": ("taco_mav.cvgl.emulator", "EmulatorMatcher"),
+                                        "fg2": ("taco_mav.cvgl.fg2.adapter", "Fg2Matcher")}
+
+
+def _matcher_class(name: str) -> type[Matcher]:
+    """The class of matcher `name` (ConfigError for a name not in MATCHERS)."""
+    if name not in _CLASSES:
+        raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")
+    module, cls = _CLASSES[name]
+    out: type[Matcher] = getattr(importlib.import_module(module), cls)
+    return out
+
+
+def needs_true_pose(profile: Profile, matcher: Matcher | None = None) -> bool:
+    """Whether the matcher in use answers from the simulator's true pose (`Matcher.needs_true_pose`): `matcher`
+    when one is given (it stands in for the profile's), else the class of `profile.matcher`. Such a matcher is
+    built with a `TruthFn` and needs neither a camera nor a map."""
+    return matcher.needs_true_pose if matcher is not None else _matcher_class(profile.matcher).needs_true_pose
 
 
 def make_matcher(profile: Profile, truth: TruthFn | None = None, *, cross_area: bool = False,
                  camera: GroundCamera | None = None) -> Matcher:
-    """Build `profile.matcher`. truth(t) -> (E, N, theta) (absolute UTM metres, ENU rad) is required by the
-    emulator only; cross_area selects the emulator's cross-area figures; camera defaults to profile.camera."""
+    """Build `profile.matcher`. truth(t) -> (E, N, theta) (absolute UTM metres, ENU rad) is required by a
+    matcher that answers from the true pose (the emulator) and unused by the others; cross_area selects the
+    emulator's cross-area figures; camera defaults to profile.camera."""
     camera = camera or GroundCamera.from_config(profile.camera)
     name = profile.matcher
+    cls = _matcher_class(name)
+    if cls.needs_true_pose and truth is None:
+        raise MatcherError(f"matcher {name!r} needs ground truth (it is a statistical model for simulation "
+                           "and evaluation, not a localiser); use 'classical' or 'fg2' on a vehicle")
     if name == "classical":
         from taco_mav.cvgl.classical import ClassicalMatcher
 
         return ClassicalMatcher(profile.classical, camera)
     if name == "emulator":
-        if truth is None:
-            raise MatcherError("matcher 'emulator' needs ground truth (it is a statistical model for simulation "
-                               "and evaluation, not a localiser); use 'classical' or 'fg2' on a vehicle")
         from taco_mav.cvgl.emulator import EmulatorMatcher
 
+        assert truth is not None
         return EmulatorMatcher(profile.emulator, truth, cross_area=cross_area,
                                lever_fwd_left=frd_fwd_left(profile.camera.position_frd_m))
-    if name == "fg2":
-        from taco_mav.cvgl.fg2.adapter import Fg2Matcher
+    from taco_mav.cvgl.fg2.adapter import Fg2Matcher
 
-        return Fg2Matcher(profile.fg2, camera)
-    raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")
+    return Fg2Matcher(profile.fg2, camera)

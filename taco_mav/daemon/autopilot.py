@@ -42,10 +42,10 @@ __all__ = ["AutopilotLink"]
 
 class AutopilotLink:
     """profile: its `link` and `output` sections; clockmap: the autopilot clock, fed here; wants_pose(): whether
-    the fix pipeline needs the simulator's true pose (a world camera, the emulator matcher); link_timeout_s:
-    silence (companion s) that makes a lost link."""
+    the simulator's true pose is needed (a camera that renders from it, a matcher that answers from it);
+    link_timeout_s: silence (companion s) that makes a lost link."""
 
-    def __init__(self, profile: Profile, clockmap: ClockMap, reporter: Reporter, link_timeout_s: float,
+    def __init__(self, *, profile: Profile, clockmap: ClockMap, reporter: Reporter, link_timeout_s: float,
                  wants_pose: Callable[[], bool]) -> None:
         p = profile
         self.profile, self.clockmap, self.reporter = p, clockmap, reporter
@@ -114,8 +114,8 @@ class AutopilotLink:
 
     def _request_streams(self, autopilot: int) -> None:
         """Ask the adopted autopilot (HEARTBEAT.autopilot: MAV_AUTOPILOT_*) for the input streams; a simulator's
-        true pose (world camera, emulator matcher) is SIMSTATE on ArduPilot SITL and HIL_STATE_QUATERNION on PX4
-        SIH (neither is sent unless asked for)."""
+        true pose (when `wants_pose`) is SIMSTATE on ArduPilot SITL and HIL_STATE_QUATERNION on PX4 SIH (neither
+        is sent unless asked for)."""
         p = self.profile
         if not p.link.request_rates:
             return

@@ -18,7 +18,6 @@ timestamps); `ClockMap` maps the companion clock onto it.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import signal
@@ -29,28 +28,30 @@ from typing import Any, Callable
 
 import numpy as np
 
-from taco_mav.config import Estimator, Profile, localiser_params, profile_to_dict
+from taco_mav.config import Profile, localiser_params, profile_to_dict
 from taco_mav.core import kernels
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.base import Matcher
+from taco_mav.cvgl.registry import needs_true_pose
 from taco_mav.daemon.anchor import LocaliserAnchor
 from taco_mav.daemon.autopilot import WAKE_S, AutopilotLink
+from taco_mav.daemon.clock import MONOTONIC, CompanionClock
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gnss import GnssTracker
 from taco_mav.daemon.inputs import Inputs
-from taco_mav.daemon.motion import MotionPipeline
-from taco_mav.daemon.options import DaemonOptions, DaemonStats
+from taco_mav.daemon.motion import MotionPipeline, start_camera_speed
+from taco_mav.daemon.options import DaemonOptions, DaemonStats, resolve
 from taco_mav.daemon.origin import OriginHandler
 from taco_mav.daemon.outputs import Outputs
 from taco_mav.daemon.record import FrameRecorder, start_recording
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.shadow import Shadow
 from taco_mav.daemon.state import LiveState
-from taco_mav.errors import ConfigError
+from taco_mav.daemon.true_pose import TruePoseTrack
 from taco_mav.mavlink import encoders
 from taco_mav.mavlink.connection import Link
-from taco_mav.mavlink.decoders import IMU_MESSAGES, Decoders
+from taco_mav.mavlink.decoders import Decoders
 from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE
 from taco_mav.mavlink.reconnect import pace_tcp_reconnect
 from taco_mav.mavlink.requests import ParamCheck, ekf3_gate_warnings
@@ -65,20 +66,12 @@ Handler = Callable[[Any, float], None]
 
 class Daemon:
     """One daemon run. `run()` blocks until `stop()` (or a signal via `run_daemon`); `start()` runs it in a
-    thread. clock: companion monotonic seconds; wall_clock: UTC unix seconds (GPS week/ms, logs); matcher:
-    use this matcher instead of the profile's (tests, embedding)."""
+    thread. clock: companion monotonic seconds (a simulator's says so: `CompanionClock.simulated`); wall_clock:
+    UTC unix seconds (GPS week/ms, logs); matcher: use this matcher instead of the profile's (tests, embedding)."""
 
-    def __init__(self, profile: Profile, options: DaemonOptions, clock: Callable[[], float] = time.monotonic,
+    def __init__(self, profile: Profile, options: DaemonOptions, *, clock: CompanionClock = MONOTONIC,
                  wall_clock: Callable[[], float] = time.time, matcher: Matcher | None = None) -> None:
-        if options.estimator is not None and options.estimator is not profile.estimator:
-            profile = dataclasses.replace(profile, estimator=options.estimator)
-        if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
-            raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
-        options = dataclasses.replace(
-            options,
-            link_timeout_s=profile.link.timeout_s if options.link_timeout_s is None else options.link_timeout_s,
-            matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
-                               else options.matcher_timeout_s))
+        profile, options = resolve(profile, options)
         self.profile, self.opt = profile, options
         # Not built ahead of time (core/ukf_aot.py), numba compiles the kernels here, never in the loop mid-drive
         started = time.perf_counter()
@@ -91,24 +84,30 @@ class Daemon:
         self.decoders = Decoders()
         self.clockmap = ClockMap(clock)
         self.reporter = Reporter(clock, profile.output.statustext_interval_s)
-        self.fixes = FixPipeline(profile, options, self.clockmap, self.stats, self.reporter.status, matcher)
+        # the simulator's true pose (SIMSTATE), kept only for a matcher that answers from it
+        self.truth = TruePoseTrack() if needs_true_pose(profile, matcher) else None
+        self.fixes = FixPipeline(profile=profile, options=options, clockmap=self.clockmap, stats=self.stats,
+                                 status=self.reporter.status, matcher=matcher, truth=self.truth)
         self.state = LiveState(LocaliserAnchor(self.params), shadow=Shadow() if options.shadow else None)
         self.motion: MotionPipeline | None = None  # camera speed (taco+, plus.camera_speed), made when opened
         self.recorder: FrameRecorder | None = None  # --record: the camera's frames into the session folder
         assert options.link_timeout_s is not None
-        self.autopilot = AutopilotLink(profile, self.clockmap, self.reporter, options.link_timeout_s, self._wants_pose)
-        self.inputs = Inputs(profile, self.state, self.stats, self.decoders, self.clockmap, self.fixes, self.reporter,
-                             clock)
-        self.outputs = Outputs(profile, self.state, self.stats, self.clockmap, self.fixes, self.reporter, wall_clock,
-                               lambda: self.origins.gnss.summary(), self.summary)
-        self.origins = OriginHandler(profile, self.state, self.decoders, self.fixes, self.reporter, clock,
-                                     self.outputs.stage.writes_gps)
+        self.autopilot = AutopilotLink(profile=profile, clockmap=self.clockmap, reporter=self.reporter,
+                                       link_timeout_s=options.link_timeout_s, wants_pose=self._wants_pose)
+        self.inputs = Inputs(profile=profile, state=self.state, stats=self.stats, decoders=self.decoders,
+                             clockmap=self.clockmap, fixes=self.fixes, reporter=self.reporter, clock=clock,
+                             truth=self.truth)
+        self.origins = OriginHandler(profile=profile, state=self.state, decoders=self.decoders, fixes=self.fixes,
+                                     reporter=self.reporter, clock=clock)
+        self.outputs = Outputs(profile=profile, state=self.state, stats=self.stats, clockmap=self.clockmap,
+                               fixes=self.fixes, reporter=self.reporter, wall_clock=wall_clock,
+                               gnss=self.origins.gnss, summary=self.summary)
         self.dispatch = self._dispatch_table(self.autopilot.handlers(), self.inputs.handlers(), self.origins.handlers())
         self.link: Link | None = None
         self.exit_code: int | None = None
         self._thread: threading.Thread | None = None
         self._passed = -math.inf  # companion s of the last read of the link
-        self._wake = math.inf if clock is time.monotonic else WAKE_S  # wall s of a wait's step (simulators)
+        self._wake = WAKE_S if clock.simulated else math.inf  # wall s of a wait's step on a simulator's clock
 
     @staticmethod
     def _dispatch_table(*tables: dict[str, Handler]) -> dict[str, Handler]:
@@ -122,9 +121,9 @@ class Daemon:
         return out
 
     def _wants_pose(self) -> bool:
-        """The fix pipeline needs the simulator's true pose: a world camera, or the emulator matcher."""
+        """The simulator's true pose is needed: by a camera that renders from it, or a matcher that answers from it."""
         camera = self.fixes.camera
-        return (camera is not None and camera.needs_pose) or self.profile.matcher == "emulator"
+        return (camera is not None and camera.needs_pose) or self.truth is not None
 
     # ------------------------------------------------------------------ what tests and tools read
     @property
@@ -182,14 +181,9 @@ class Daemon:
         pace_tcp_reconnect(self.link.conn)  # a TCP autopilot that goes away must not block the loop
         self.fixes.start()
         if opt.record is not None:
-            self.recorder = start_recording(log_dir, self.fixes.camera, self.clockmap, opt.record, self.reporter,
-                                            self.clock)
-        if self.fixes.camera is not None and p.plus.camera_speed and p.estimator is Estimator.TACO_PLUS:
-            try:
-                self.motion = MotionPipeline(self.fixes)
-                self.motion.start()
-            except ValueError as e:  # the camera sees too little ground ahead: fixes still work, speed is the IMU's
-                log.warning("camera speed off (plus.camera_speed): %s", e)
+            self.recorder = start_recording(log_dir=log_dir, camera=self.fixes.camera, clockmap=self.clockmap,
+                                            options=opt.record, reporter=self.reporter, clock=self.clock)
+        self.motion = start_camera_speed(self.fixes)
         for text in ekf3_gate_warnings(p.output.satellites_visible, p.output.hdop_uere_m, p.output.hdop_min):
             log.warning("%s", text)
         now = self.clock()

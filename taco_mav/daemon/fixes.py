@@ -5,7 +5,7 @@ Threads: `poll` and `drain` run on the daemon loop thread (the only one that tou
 `MatchWorker` thread runs the frame fetch and `FixService.answer`; the camera grabs in its own thread. Times:
 queries carry autopilot seconds; a companion-clock camera is mapped through the daemon's `ClockMap`.
 
-    fixes = FixPipeline(profile, options, clockmap, stats, status)
+    fixes = FixPipeline(profile=profile, options=options, clockmap=clockmap, stats=stats, status=status)
     fixes.open(events); ...; fixes.start()      # camera grabbing; the worker starts with the origin
     fixes.on_origin(origin)                     # FixService on the origin's UTM zone, worker thread
     fixes.drain(loc, generation, shadow); fixes.poll(loc, generation)   # every loop step
@@ -23,12 +23,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import queue
-import threading
 import time
 from collections import Counter, deque
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
@@ -39,7 +37,8 @@ from taco_mav.camera.sources import CameraSource, ClockDomain, FrameGuard, Freez
 from taco_mav.config import Profile
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import FixQuery
-from taco_mav.cvgl.base import GroundFrame, Matcher
+from taco_mav.cvgl.base import GroundFrame, Matcher, TruthFn
+from taco_mav.cvgl.registry import make_matcher, needs_true_pose
 from taco_mav.daemon.eventlog import EventLog
 from taco_mav.daemon.shadow import Shadow, twin_fix
 from taco_mav.daemon.worker import FetchFn, MatchWorker, WorkResult
@@ -50,6 +49,8 @@ from taco_mav.mavlink.mavconst import SEV_INFO, SEV_NOTICE, SEV_WARNING
 from taco_mav.mavlink.timesync import ClockMap
 
 if TYPE_CHECKING:
+    from taco_mav.cvgl.satellite import SatelliteMap
+    from taco_mav.cvgl.service import FixService
     from taco_mav.daemon.options import DaemonOptions
 
 log = logging.getLogger(__name__)
@@ -72,26 +73,27 @@ class FixPipeline:
     """Camera, satellite map, matcher and matcher worker of one daemon run. profile: the matcher and map
     settings; options: camera spec, map path, frame_max_gap_s (s), matcher_latency_s (s); clockmap: companion
     -> autopilot clock; stats: counters updated in place; status: STATUSTEXT sender; matcher: use this
-    matcher instead of the profile's (tests, embedding)."""
+    matcher instead of the profile's (tests, embedding); truth: the simulator's true pose, for building a matcher
+    that answers from it (`Matcher.needs_true_pose`; such a matcher needs neither camera nor map)."""
 
-    def __init__(self, profile: Profile, options: DaemonOptions, clockmap: ClockMap, stats: FixCounters,
-                 status: StatusFn, matcher: Matcher | None = None) -> None:
+    def __init__(self, *, profile: Profile, options: DaemonOptions, clockmap: ClockMap, stats: FixCounters,
+                 status: StatusFn, matcher: Matcher | None = None, truth: TruthFn | None = None) -> None:
         self.profile, self.opt = profile, options
         self.clockmap, self.stats, self.status = clockmap, stats, status
+        self.truth = truth
+        self.needs_true_pose = needs_true_pose(profile, matcher)
         self.ground_camera = GroundCamera.from_config(profile.camera)
         self.rectifier = FrameRectifier.from_config(profile.camera)  # raw frames -> the undistorted model
         self.events: EventLog | None = None
         self.camera: CameraSource | None = None
         self.guard: FrameGuard | None = None
-        self.sat_map: Any = None
-        self.matcher: Any = matcher
-        self.service: Any = None
+        self.sat_map: SatelliteMap | None = None
+        self.matcher: Matcher | None = matcher
+        self.service: FixService | None = None
         self.worker: MatchWorker | None = None
         self._results: queue.Queue[WorkResult] = queue.Queue()  # shared by replacement workers
         self._held: deque[WorkResult] = deque()  # answers waiting out matcher_latency_s (autopilot time)
         self._stuck: list[MatchWorker] = []  # abandoned workers (matcher hung)
-        self._truth: deque[tuple[float, float, float, float]] = deque(maxlen=3000)  # SIMSTATE: t, E, N, theta grid
-        self._truth_lock = threading.Lock()  # appended by the loop thread, searched by the matcher worker
         self.last_weight = 0.0  # best crop's match weight w of the last answered query (0: none yet)
 
     # ------------------------------------------------------------------ lifecycle
@@ -110,15 +112,13 @@ class FixPipeline:
 
             self.sat_map = SatelliteMap(map_path, min_valid=p.map.min_valid_fraction,
                                         in_memory_max_mb=p.map.in_memory_max_mb)
-        if p.matcher == "emulator":
-            log.warning("matcher 'emulator' draws fixes from the SIMSTATE true pose: simulation only")
-        if self.matcher is None and (p.matcher == "emulator" or self.sat_map is not None):
-            from taco_mav.cvgl.registry import make_matcher
-
-            self.matcher = make_matcher(p, truth=self._truth_at if p.matcher == "emulator" else None)
+        if self.needs_true_pose:
+            log.warning("matcher %r draws fixes from the simulator's true pose: simulation only", p.matcher)
+        if self.matcher is None and (self.needs_true_pose or self.sat_map is not None):
+            self.matcher = make_matcher(p, truth=self.truth)
         else:
             log.warning("no satellite map (--map): no CVGL fixes, dead reckoning only")
-        if self.matcher is not None and self.camera is None and p.matcher != "emulator":
+        if self.matcher is not None and self.camera is None and not self.needs_true_pose:
             log.warning("no camera (--camera): no CVGL fixes, dead reckoning only")
 
     def start(self) -> None:
@@ -169,29 +169,10 @@ class FixPipeline:
         self.worker = MatchWorker(self.service, self._results)
         self.worker.start()
 
-    def on_pose(self, t: float, pose: SimPose, origin: encoders.Origin | None) -> None:
-        """SIMSTATE true pose at autopilot time t (s): drives a world camera and the emulator's truth (kept only
-        for the emulator: a simulator streams SIMSTATE at its data rate, 100 Hz, to a real camera's run too)."""
+    def on_pose(self, t: float, pose: SimPose) -> None:
+        """The simulator's true pose at autopilot time t (s): to a camera that renders from it (`needs_pose`)."""
         if self.camera is not None and self.camera.needs_pose:
             self.camera.feed_pose(t, pose.lat, pose.lon, pose.yaw)  # type: ignore[attr-defined]
-        if origin is not None and self.profile.matcher == "emulator":
-            e, n = origin.projector.to_utm(pose.lat, pose.lon)
-            theta = math.pi / 2 - pose.yaw + origin.convergence
-            with self._truth_lock:
-                self._truth.append((t, float(e), float(n), math.remainder(theta, 2 * math.pi)))
-
-    def clear_truth(self) -> None:
-        """Forget the SIMSTATE poses (the autopilot clock restarted)."""
-        with self._truth_lock:
-            self._truth.clear()
-
-    def _truth_at(self, t: float) -> tuple[float, float, float]:
-        """SIMSTATE pose nearest autopilot time t: absolute UTM E, N metres and grid heading (emulator only)."""
-        with self._truth_lock:
-            if not self._truth:
-                raise RuntimeError("no SIMSTATE received: the emulator matcher needs the simulator's true pose")
-            best = min(self._truth, key=lambda s: abs(s[0] - t))
-        return best[1], best[2], best[3]
 
     # ------------------------------------------------------------------ queries and fixes
     def poll(self, loc: Localiser | None, generation: int, twin: Localiser | None = None) -> None:
@@ -251,9 +232,10 @@ class FixPipeline:
 
     def _frame_fetcher(self, q: FixQuery) -> FetchFn | None:
         """A callable the worker runs to get the frame nearest the capture time (rendering happens there);
-        the frame guard vets it (FrameRejected with the reason)."""
+        the frame guard vets it (FrameRejected with the reason). Without a camera, a matcher that answers from
+        the true pose gets an empty frame at the capture time; any other gets none."""
         if self.camera is None:
-            if self.profile.matcher != "emulator":
+            if not self.needs_true_pose:
                 return None
             return lambda: GroundFrame(np.zeros((0, 0, 3), np.uint8), q.capture_t, self.ground_camera)
         return self.frame_fetcher(q.capture_t)

@@ -1,7 +1,7 @@
 """The daemon's handler of what the vehicle senses: IMU samples (checked against the autopilot's timeline for
 reboots, gaps and outliers) into the Localiser, attitude, the throttle output (whether the autopilot drives),
-and a simulator's true pose for the fix pipeline. It anchors the Localiser at the first IMU sample after the
-origin, and again after a reboot or a gap."""
+and a simulator's true pose for the fix pipeline's camera and the true-pose track. It anchors the Localiser at
+the first IMU sample after the origin, and again after a reboot or a gap."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from taco_mav.daemon.imu_timeline import ImuTimeline, TimelineVerdict
 from taco_mav.daemon.options import DaemonStats
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.state import LiveState
+from taco_mav.daemon.true_pose import TruePoseTrack
 from taco_mav.mavlink.decoders import IMU_MESSAGES, POSE_MESSAGES, Decoders
 from taco_mav.mavlink.mavconst import SEV_WARNING
 from taco_mav.mavlink.timesync import ClockMap
@@ -29,12 +30,15 @@ __all__ = ["Inputs"]
 
 class Inputs:
     """state: shared with the other handlers (this one writes attitude, last_imu and the Localiser);
-    clock: companion monotonic seconds; decoders: field checks and rejection counters."""
+    clock: companion monotonic seconds; decoders: field checks and rejection counters; fixes: its camera takes
+    the simulator's true pose; truth: the true-pose track of a matcher that answers from it (None: none does)."""
 
-    def __init__(self, profile: Profile, state: LiveState, stats: DaemonStats, decoders: Decoders,
-                 clockmap: ClockMap, fixes: FixPipeline, reporter: Reporter, clock: Callable[[], float]) -> None:
+    def __init__(self, *, profile: Profile, state: LiveState, stats: DaemonStats, decoders: Decoders,
+                 clockmap: ClockMap, fixes: FixPipeline, reporter: Reporter, clock: Callable[[], float],
+                 truth: TruePoseTrack | None) -> None:
         self.state, self.stats, self.decoders = state, stats, decoders
         self.clockmap, self.fixes, self.reporter, self.clock = clockmap, fixes, reporter, clock
+        self.truth = truth
         self.sources = InputSources(profile.link.imu_message)  # IMU and attitude streams: first valid, fallback
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self.drive = DriveCommand()  # armed / driving, from the autopilot's HEARTBEAT and VFR_HUD
@@ -116,12 +120,15 @@ class Inputs:
                 self.state.twin.set_drive_command(last.t, driving)
 
     def on_sim_pose(self, msg: Any, received: float) -> None:
-        """A simulator's true pose (SIMSTATE, HIL_STATE_QUATERNION): to the fix pipeline (world camera, emulator
-        matcher)."""
+        """A simulator's true pose (SIMSTATE, HIL_STATE_QUATERNION) at the latest IMU time: to the fix pipeline's
+        camera (a world camera renders from it) and, once there is an origin, to the true-pose track."""
+        st = self.state
         pose = self.decoders.sim_pose(msg)
-        if pose is None or self.state.last_imu is None:
+        if pose is None or st.last_imu is None:
             return
-        self.fixes.on_pose(self.state.last_imu.t, pose, self.state.origin)
+        self.fixes.on_pose(st.last_imu.t, pose)
+        if self.truth is not None and st.origin is not None:
+            self.truth.add(st.last_imu.t, pose, st.origin)
 
     # ------------------------------------------------------------------ re-anchoring
     def _reboot(self, t_last: float, t_new: float) -> None:
@@ -133,7 +140,8 @@ class Inputs:
         self.reporter.event("reboot", t_last=t_last, t_new=t_new)
         self.reporter.status(SEV_WARNING, text, key="reboot")
         self.clockmap.reset()
-        self.fixes.clear_truth()
+        if self.truth is not None:
+            self.truth.clear()
         if st.loc is not None and st.attitude is not None:
             st.loc = st.anchor.restarted(st.loc, st.attitude.yaw, t_new)
             self._anchored()

@@ -6,8 +6,8 @@ and hands finished ones to the Localiser); one worker thread fetches the two fra
 happens there), warps them and correlates. Times are autopilot seconds; the heading change between the two
 frames comes from the Localiser's compass headings, recorded at every loop step (`on_heading`, ENU rad).
 
-    motion = MotionPipeline(fixes)   # after fixes.open(), with a camera
-    motion.start(); ...; motion.tick(loc) every loop step; ...; motion.stop()
+    motion = start_camera_speed(fixes)   # after fixes.open(): a started MotionPipeline, or None
+    ...; motion.tick(loc) every loop step; ...; motion.stop()
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from taco_mav.camera.sources import FrameGuard, FrameRejected
+from taco_mav.config import Estimator
 from taco_mav.core.localiser import Localiser
 from taco_mav.cvgl.ground_motion import MIN_GAP_S, GroundMotion, HeadingHistory
 
@@ -49,7 +50,8 @@ class MotionPipeline:
     half the largest shift looked for); lag_s: how far behind the newest IMU time the second
     frame is asked for (a world camera has poses up to the last SIMSTATE, a live one frames up to now)."""
 
-    def __init__(self, fixes: FixPipeline, interval_s: float = 0.5, gap_s: float = 0.3, lag_s: float = 0.1) -> None:
+    def __init__(self, *, fixes: FixPipeline, interval_s: float = 0.5, gap_s: float = 0.3,
+                 lag_s: float = 0.1) -> None:
         self.fixes = fixes
         self.interval_s, self.gap_s, self.lag_s = interval_s, gap_s, lag_s
         cam = fixes.ground_camera
@@ -89,7 +91,7 @@ class MotionPipeline:
         and the shadow twin (`add_ground_motion`, taco+ only)."""
         if loc is None:
             return
-        self.on_heading(loc.t, float(loc.pre.theta))
+        self.on_heading(loc.t, float(loc.timeline.pre.theta))
         while True:
             try:
                 r = self._done.get_nowait()
@@ -106,7 +108,7 @@ class MotionPipeline:
             return
         self._next = loc.t + self.interval_s
         t1 = loc.t - self.lag_s
-        gap = self.motion.frame_gap(float(loc.pre.speed), self.gap_s)
+        gap = self.motion.frame_gap(float(loc.timeline.pre.speed), self.gap_s)
         try:
             self._jobs.put_nowait((t1 - gap, t1))
         except queue.Full:
@@ -147,3 +149,19 @@ class MotionPipeline:
         if m is None:
             return "weak"
         return MotionResult(a.t, b.t, m.d_fwd, m.d_left, m.sigma_m, m.response)
+
+
+def start_camera_speed(fixes: FixPipeline) -> MotionPipeline | None:
+    """taco+'s camera speed (plus.camera_speed) from the fix pipeline's camera: a started `MotionPipeline`, or None
+    (no camera, paper mode, switched off, or a camera that sees too little ground ahead: fixes still work, the
+    speed is the IMU's)."""
+    p = fixes.profile
+    if fixes.camera is None or not p.plus.camera_speed or p.estimator is not Estimator.TACO_PLUS:
+        return None
+    try:
+        motion = MotionPipeline(fixes=fixes)
+    except ValueError as e:
+        log.warning("camera speed off (plus.camera_speed): %s", e)
+        return None
+    motion.start()
+    return motion

@@ -1,13 +1,17 @@
-"""What a daemon run is told (`DaemonOptions`, from the command line) and what it counts (`DaemonStats`)."""
+"""What a daemon run is told (`DaemonOptions`, from the command line, and `resolve` against the profile) and
+what it counts (`DaemonStats`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from taco_mav.config import Estimator
+from taco_mav.config import Estimator, Profile
 from taco_mav.daemon.record import RecordOptions
+from taco_mav.errors import ConfigError
+from taco_mav.mavlink.decoders import IMU_MESSAGES
 
 
 @dataclass(frozen=True)
@@ -33,6 +37,20 @@ class DaemonOptions:
     signing_key: Path | None = None  # MAVLink 2 signing key file (32 bytes raw or hex); None = no signing
     record: RecordOptions | None = None  # keep the camera's frames in log_dir/frames (needs log_dir and a camera)
     shadow: bool = False  # run a GNSS-free twin beside the fused filter and report its distance to the receiver
+
+
+def resolve(profile: Profile, options: DaemonOptions) -> tuple[Profile, DaemonOptions]:
+    """The profile with `options.estimator` over its own, and the options with the profile's link and matcher
+    timeouts where they give none; ConfigError for a link.imu_message neither 'auto' nor an IMU message."""
+    if options.estimator is not None and options.estimator is not profile.estimator:
+        profile = dataclasses.replace(profile, estimator=options.estimator)
+    if profile.link.imu_message != "auto" and profile.link.imu_message not in IMU_MESSAGES:
+        raise ConfigError(f"link.imu_message: {profile.link.imu_message!r} is not 'auto' or one of {IMU_MESSAGES}")
+    return profile, dataclasses.replace(
+        options,
+        link_timeout_s=profile.link.timeout_s if options.link_timeout_s is None else options.link_timeout_s,
+        matcher_timeout_s=(profile.map.matcher_timeout_s if options.matcher_timeout_s is None
+                           else options.matcher_timeout_s))
 
 
 @dataclass

@@ -16,6 +16,7 @@ from taco_mav.daemon.anchor import (AUTOPILOT_START_SIGMA_M, GNSS_RANK, NO_ORIGI
                                     OriginCandidate, OriginChooser)
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gnss import MAX_RANGE_M, GnssEvent, GnssTracker, distance_m
+from taco_mav.daemon.output_stage import writes_gps
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.shadow import SHADOW_NAME
 from taco_mav.daemon.state import LiveState
@@ -32,16 +33,17 @@ __all__ = ["OriginHandler"]
 
 
 class OriginHandler:
-    """state: shared (this handler sets the origin and the start, and hands GNSS to the Localiser);
-    writes_gps: our output occupies GPS instance output.gps_id + 1 (never a receiver); clock: companion s."""
+    """state: shared (this handler sets the origin and the start, and hands GNSS to the Localiser); fixes: told
+    the origin (its map frame); clock: companion s. When our output is a GPS instance (`writes_gps`), it occupies
+    instance output.gps_id + 1, never a receiver."""
 
-    def __init__(self, profile: Profile, state: LiveState, decoders: Decoders, fixes: FixPipeline,
-                 reporter: Reporter, clock: Callable[[], float], writes_gps: bool) -> None:
+    def __init__(self, *, profile: Profile, state: LiveState, decoders: Decoders, fixes: FixPipeline,
+                 reporter: Reporter, clock: Callable[[], float]) -> None:
         self.profile, self.state, self.decoders = profile, state, decoders
         self.fixes, self.reporter, self.clock = fixes, reporter, clock
-        self.writes_gps = writes_gps
+        self.writes_gps = writes_gps(profile.output)
         self.chooser = OriginChooser()
-        self.gnss = GnssTracker(profile.output.gps_id, writes_gps, profile.output.hdop_uere_m)
+        self.gnss = GnssTracker(profile.output.gps_id, self.writes_gps, profile.output.hdop_uere_m)
         self.link: Link | None = None
         self.request: MessageRequest | None = None  # GPS_GLOBAL_ORIGIN / HOME_POSITION while there is no origin
         self.position: AutopilotPosition | None = None  # the autopilot's latest own position

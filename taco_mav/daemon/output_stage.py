@@ -16,17 +16,23 @@ from typing import Any, Callable
 
 import numpy as np
 
-from taco_mav.config import Profile
+from taco_mav.config import OutputConfig, Profile
 from taco_mav.core.types import Estimate
 from taco_mav.daemon.health import Health, stall_sigma
 from taco_mav.errors import ConfigError
 from taco_mav.mavlink import encoders
 from taco_mav.mavlink.decoders import AttitudeReading
 
-__all__ = ["GNSS_OUTPUTS", "OUTPUTS", "OutputStage"]
+__all__ = ["GNSS_OUTPUTS", "OUTPUTS", "OutputStage", "writes_gps"]
 
 OUTPUTS = ("gps_input", "hil_gps", "odometry")
 GNSS_OUTPUTS = ("gps_input", "hil_gps")  # outputs the autopilot takes as a GPS instance (gps_id + 1)
+
+
+def writes_gps(output: OutputConfig) -> bool:
+    """Whether `output.messages` hold a GPS-instance output (GPS_INPUT, HIL_GPS): then instance gps_id + 1 echoes
+    us and is never a receiver."""
+    return any(m in GNSS_OUTPUTS for m in output.messages)
 
 
 class OutputStage:
@@ -41,8 +47,7 @@ class OutputStage:
         self.compass_sigma_rad = profile.ukf.compass_sigma_rad
         self.health = Health(cfg.degrade_accuracy_m, cfg.recover_accuracy_m, cfg.stall_s)
         self._on_change = on_change
-        # a GPS-instance output (GPS_INPUT, HIL_GPS): instance gps_id + 1 echoes us and is never a receiver
-        self.writes_gps = any(m in GNSS_OUTPUTS for m in cfg.messages)
+        self.writes_gps = writes_gps(cfg)
         self.last_hacc_m: float | None = None  # horizontal 1-sigma of the last solution sent, m (gcs.py: taco_hacc)
 
     def messages(self, est: Estimate, imu_age_s: float, origin: encoders.Origin, mav: Any, utc_s: float,

@@ -11,6 +11,7 @@ from typing import Any, Callable
 from taco_mav.config import Profile
 from taco_mav.daemon.fixes import FixPipeline
 from taco_mav.daemon.gcs import GCS_HEALTH_HZ, GcsHealth
+from taco_mav.daemon.gnss import GnssTracker
 from taco_mav.daemon.options import DaemonStats
 from taco_mav.daemon.output_stage import OutputStage
 from taco_mav.daemon.reporter import Reporter
@@ -29,14 +30,15 @@ STATS_INTERVAL_S = 10.0  # the event log's "stats" line
 
 
 class Outputs:
-    """state: shared (read here); wall_clock: UTC unix seconds (GPS week and ms); gnss_state(): the GNSS
-    tracker's summary (the ground station's GNSS line); summary(): the daemon's counters (the stats line)."""
+    """state: shared (read here); wall_clock: UTC unix seconds (GPS week and ms); gnss: the real GNSS as the
+    origin handler tracks it (the ground station's GNSS line); summary(): the daemon's counters (the stats
+    line)."""
 
-    def __init__(self, profile: Profile, state: LiveState, stats: DaemonStats, clockmap: ClockMap,
-                 fixes: FixPipeline, reporter: Reporter, wall_clock: Callable[[], float],
-                 gnss_state: Callable[[], dict[str, Any]], summary: Callable[[], dict[str, Any]]) -> None:
+    def __init__(self, *, profile: Profile, state: LiveState, stats: DaemonStats, clockmap: ClockMap,
+                 fixes: FixPipeline, reporter: Reporter, wall_clock: Callable[[], float], gnss: GnssTracker,
+                 summary: Callable[[], dict[str, Any]]) -> None:
         self.state, self.stats, self.clockmap, self.fixes, self.reporter = state, stats, clockmap, fixes, reporter
-        self.wall_clock, self.gnss_state, self.summary = wall_clock, gnss_state, summary
+        self.wall_clock, self.gnss, self.summary = wall_clock, gnss, summary
         self.stage = OutputStage(profile, self._health_changed)
         self.gcs = GcsHealth()
         self.link: Link | None = None
@@ -86,10 +88,9 @@ class Outputs:
         link, st = self.link, self.state
         assert link is not None
         svc = self.fixes.service.stats if self.fixes.service is not None else None
-        gnss = self.gnss_state()
         rep = self.gcs.update(now, st.loc.estimate() if st.loc is not None and st.origin is not None else None,
                               self.stage.last_hacc_m, self.stage.health.healthy,
-                              "rejected" if gnss["rejecting"] else gnss["state"], self.stats.fixes,
+                              "rejected" if self.gnss.rejecting else self.gnss.state, self.stats.fixes,
                               svc.answered if svc else 0, svc.triggers_off_map if svc else 0, self.fixes.last_weight)
         t_ap = self.clockmap.now_autopilot()
         for name, value in rep.values:

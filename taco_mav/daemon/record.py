@@ -151,8 +151,8 @@ class FrameRecorder:
         self._last_t = t_frame
 
 
-def start_recording(log_dir: Path | None, camera: CameraSource | None, clockmap: ClockMap, options: RecordOptions,
-                    reporter: Reporter, clock: Callable[[], float]) -> FrameRecorder | None:
+def start_recording(*, log_dir: Path | None, camera: CameraSource | None, clockmap: ClockMap,
+                    options: RecordOptions, reporter: Reporter, clock: Callable[[], float]) -> FrameRecorder | None:
     """--record: a started `FrameRecorder` into log_dir/frames, whose budget warning goes to the log, the events
     (`record_budget`) and the ground station; None (with a warning) without a session folder or a camera."""
     if log_dir is None or camera is None:

@@ -25,13 +25,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from typing import Any
-
 import numpy as np
 
 from taco_mav.core.frames import FixOutcome
 from taco_mav.core.localiser import Localiser
 from taco_mav.core.types import GnssFix, MatchResult
 from taco_mav.daemon.survey import SurveyAnswer, stretches, verdict
+from taco_mav.mavlink import encoders
 
 log = logging.getLogger(__name__)
 
@@ -66,9 +66,10 @@ class Shadow:
         """The main Localiser was (re-)anchored: `twin` starts beside it, from the same state."""
         self.twin = twin
 
-    def compare(self, fix: GnssFix | None, origin: Any) -> dict[str, float] | None:
-        """The twin against an honest receiver's latest fix (None: no honest fix now): the `shadow` event's
-        fields, or None when there is nothing to compare (no twin yet, the fix too far from the twin's time)."""
+    def compare(self, fix: GnssFix | None, origin: encoders.Origin | None) -> dict[str, float] | None:
+        """The twin against an honest receiver's latest fix (None: no honest fix now) in the origin's frame: the
+        `shadow` event's fields, or None when there is nothing to compare (no twin, fix or origin yet, the fix too
+        far from the twin's time)."""
         twin = self.twin
         if twin is None:
             return None
@@ -78,7 +79,7 @@ class Shadow:
                 self._odo += float(np.hypot(*(np.asarray(est.xy) - self._last_xy)))
             self._last_xy = np.asarray(est.xy, dtype=float)
         self._survey(fix, est.t)
-        if fix is None:
+        if fix is None or origin is None:
             return None
         dt = est.t - fix.t
         if abs(dt) > MAX_CARRY_S or not np.all(np.isfinite(est.xy)):

@@ -17,8 +17,11 @@ class SimClock:
     """Autopilot time, seconds since boot. Starts at `boot_offset_s` when created.
 
     speed: real-time factor (> 0). While `hold()` is in force (lockstep playback) the clock reads exactly the
-    last value given to `advance_to`; otherwise it runs from that value at `speed` x wall time.
+    last value given to `advance_to`; otherwise it runs from that value at `speed` x wall time. `simulated`: a
+    companion on this clock (`daemon.clock.CompanionClock`) waits on it in short wall-time steps.
     """
+
+    simulated = True
 
     def __init__(self, speed: float = 1.0, boot_offset_s: float = 0.0,
                  wall: Callable[[], float] = time.monotonic) -> None:

@@ -110,6 +110,7 @@ class Fg2Matcher:
     default it is loaded from cfg. camera: the ground camera of the frames."""
 
     name = "fg2"
+    needs_true_pose = False
 
     def __init__(self, cfg: Fg2Config, camera: GroundCamera, model: Any = None) -> None:
         torch = _torch()
