@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus.mode import PlusMode
+from taco_mav.core.plus.aiding import PlusAids
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.daemon.anchor import LocaliserAnchor
 
@@ -28,7 +28,7 @@ def test_reanchoring_keeps_the_estimate_and_grows_sigma_over_a_gap():
     a = LocaliserAnchor(LocaliserParams(plus=PlusParams()))
     a.set_origin(49.0, 8.4, 115.0, speed=10.0, course=math.pi / 2)  # east at 10 m/s
     loc = a.localiser(0.0, attitude_yaw=math.pi / 2, xy=(100.0, 50.0), sigma_xy=2.0)
-    assert isinstance(loc.estimator, PlusMode)
+    assert isinstance(loc.estimator.aids, PlusAids)
     est = loc.estimate()
     c = a.carried(loc, t_last=0.0, t_new=4.0)  # 4 s without IMU at 10 m/s
     assert c.carried_m == pytest.approx(40.0)

@@ -59,7 +59,7 @@ def test_recovery_refuses_a_chance_peak_of_the_grid_and_accepts_the_truth():
     applied = jumps_applied(loc)
     assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
     assert all(o.reason in ("unconfirmed", "weak") for o in loc.record.outcomes[:6] if len(o.weights) > 5)
-    assert "recovered" in [k for _, k, _ in loc.record.lock_events] and loc.estimator.lock.state is LockState.LOCKED
+    assert "recovered" in [k for _, k, _ in loc.record.lock_events] and loc.estimator.fixes.lock.state is LockState.LOCKED
     frames = np.arange(len(err)) * 0.1
     assert np.median(err[frames > 40.0]) < 1.0
 
@@ -80,7 +80,7 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
             if q is None:
                 continue
             if q.capture_t > 60.0 and planted is None:
-                sc = loc.estimator.fix_scale.scale
+                sc = loc.estimator.fixes.fix_scale.scale
                 s_f, s_l = (sc * v for v in weight_sigmas(loc.p.ukf, 0.3))
                 u = np.array([-math.sin(q.heading), math.cos(q.heading)])
                 S = loc.timeline.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
@@ -94,7 +94,7 @@ def test_a_weak_far_answer_that_passes_the_innovation_gate_is_held_until_confirm
     assert dist > 2.0 * math.sqrt(sig**2 + 4.0)  # far beyond what the prior allows
     assert o_old.accepted and o_new.reason == "unconfirmed"
     after = [o for o in new.record.outcomes if o.capture_t > o_new.capture_t]
-    assert after and after[0].accepted and new.estimator.lock.losses == 0
+    assert after and after[0].accepted and new.estimator.fixes.lock.losses == 0
     truth = np.array(d.pose_at(d.t[-1])[:2])
     assert np.linalg.norm(new.estimate().xy - truth) < 1.5
 
@@ -131,7 +131,7 @@ def test_a_chance_peak_between_true_recovery_answers_does_not_reset_their_count(
     applied = [o for o in loc.record.outcomes if o.accepted and len(o.weights) > 5]
     assert applied and all(np.linalg.norm(o.xy - d.pose_at(o.capture_t)[:2]) < 3.0 for o in applied)
     assert len(grids) <= 8  # true answers 1, 3, 5 confirm: not reset by the peaks between them
-    assert loc.estimator.lock.state is LockState.LOCKED
+    assert loc.estimator.fixes.lock.state is LockState.LOCKED
 
 
 def test_held_recovery_answers_wait_for_a_slow_matcher():
@@ -142,7 +142,7 @@ def test_held_recovery_answers_wait_for_a_slow_matcher():
     innov = np.array([12.0, -5.0])
     for latency, expect in ((6.0, "confirmed"), (0.5, "hold")):
         loc = make_localiser(CONFIRM, 0.0)
-        hold = loc.estimator.answers.hold
+        hold = loc.estimator.fixes.answers.hold
         out = [hold(LockState.LOST, innov, 13.0, P, t, 0.0, latency) for t in (20.0, 35.0, 50.0)]
         assert out[:2] == ["hold", "hold"] and out[2] == expect, (latency, out)
 
@@ -166,7 +166,7 @@ def test_recovery_answers_agree_when_one_speed_error_along_the_track_explains_th
         for k, t in enumerate(times):
             odo = 16.0 * k  # 8 m/s
             c = np.array([-18.0, 6.0]) + speed_error * a[k] + scatter * rng.normal(size=2)
-            out.append(loc.estimator.answers.hold(LockState.LOST, c, float(np.linalg.norm(c)), P, t, odo, 1.0, a[k]))
+            out.append(loc.estimator.fixes.answers.hold(LockState.LOST, c, float(np.linalg.norm(c)), P, t, odo, 1.0, a[k]))
         return out
 
     assert outcomes(2.0, 3.0) == ["hold", "hold", "confirmed"]

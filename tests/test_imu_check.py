@@ -89,7 +89,7 @@ def test_a_cruise_taken_for_a_stop_is_caught_and_its_speed_given_back():
     assert kinds.count("speed_restored") >= 1 and "imu_disagrees" in kinds and "imu_agrees" in kinds
     assert err.max() < 5.0
     assert np.mean(err <= 3.0 * sig) > 0.95
-    assert loc.estimator.lock.losses == 0
+    assert loc.estimator.fixes.lock.losses == 0
 
 
 def test_the_autopilot_drive_command_vetoes_zero_velocity_updates():

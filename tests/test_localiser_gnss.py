@@ -13,7 +13,7 @@ from helpers import OracleMatcher, simulate
 
 from taco_mav.core.localiser import make_localiser
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus.mode import PlusMode
+from taco_mav.core.plus.aiding import PlusAids
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.types import GnssFix, ImuSample
 
@@ -110,7 +110,7 @@ def test_taco_plus_calibrates_on_gnss_and_dead_reckons_after_it_is_lost():
     d, samples = drive()
     fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, until=60.0)
     loc, rec, outs, _ = run(d, samples, fixes, PLUS)
-    assert isinstance(loc.estimator, PlusMode) and used(outs) == 1.0
+    assert isinstance(loc.estimator.aids, PlusAids) and used(outs) == 1.0
     assert all(o.reason == "fused" for t, o in outs if t > 0.1)
     at = window(rec, 59.95, 60.05)[0]
     # at 100 s: the biases learnt on the GNSS (the compass bias, a Gauss-Markov state, decays with tau 60 s)

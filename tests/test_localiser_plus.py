@@ -10,10 +10,10 @@ from helpers import OracleMatcher, simulate
 from test_localiser import _drive
 
 from taco_mav.core.localiser import make_localiser
-from taco_mav.core.paper import PaperMode
+from taco_mav.core.paper import BestCandidate
 from taco_mav.core.params import LocaliserParams, UkfParams
 from taco_mav.core.plus.lock import LockState
-from taco_mav.core.plus.mode import PlusMode
+from taco_mav.core.plus.fix_policy import PlusFixPolicy
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.types import MatchResult
 from taco_mav.core.ukf import fix_covariance, weight_sigmas
@@ -49,8 +49,8 @@ def _rms(e: np.ndarray) -> float:
 
 
 def test_make_localiser_picks_the_mode():
-    assert isinstance(make_localiser(LocaliserParams(), 0.0).estimator, PaperMode)
-    assert isinstance(make_localiser(PLUS, 0.0).estimator, PlusMode)
+    assert isinstance(make_localiser(LocaliserParams(), 0.0).estimator.fixes, BestCandidate)
+    assert isinstance(make_localiser(PLUS, 0.0).estimator.fixes, PlusFixPolicy)
 
 
 def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
@@ -63,13 +63,13 @@ def test_accurate_with_fewer_fixes_than_paper_and_late_fixes_compensated():
     assert _rms(err) < 1.0 and _rms(err) < 1.1 * paper_ate  # about paper's accuracy at under half its fixes
     # the oracle's noise is a third of the paper's w -> sigma mapping (0.5 / 1.0 m vs 1.5 / 3.0 m at w = 1):
     # the adaptive scale finds it (floor 0.3)
-    assert 0.3 <= loc.estimator.fix_scale.scale <= 0.5
+    assert 0.3 <= loc.estimator.fixes.fix_scale.scale <= 0.5
     extra = loc.estimate().extra
-    assert extra["fix_scale"] == loc.estimator.fix_scale.scale and abs(extra["compass_bias"]) < 0.02
+    assert extra["fix_scale"] == loc.estimator.fixes.fix_scale.scale and abs(extra["compass_bias"]) < 0.02
     assert len(loc.record.queries) < 0.5 * len(paper.record.queries)
     assert abs(_rms(err1) - _rms(err)) < 0.3  # rewind/replay keeps the speed feedback consistent
     assert np.mean(err <= 3.0 * np.maximum(sig, 1e-3)) >= 0.95  # honest uncertainty
-    assert loc.estimator.lock.losses == 0
+    assert loc.estimator.fixes.lock.losses == 0
 
 
 def answers_at(q, world_xy: np.ndarray, w: float = 0.95, psi_res: float = 0.02) -> list[MatchResult]:
@@ -103,13 +103,13 @@ def test_planted_30m_silent_outlier_is_rejected():
     # the outlier moves nothing: the error is what the drive without it has, plus the dead reckoning over the
     # fix it cost (the planted window holds no good answer)
     assert err.max() < 3.5 and err.max() < clean.max() + 0.6
-    assert loc.estimator.lock.losses == 0
+    assert loc.estimator.fixes.lock.losses == 0
 
 
 def _answer_with_nis(loc, q, target_nis: float, agreeing: int) -> list[MatchResult]:
     """Answers to `q` placing the vehicle off the filter's estimate, to the left, by the distance that gives
     `target_nis` under the filter's own S = P + R; `agreeing` crops say so (w 0.7), the rest are misses."""
-    sc = loc.estimator.fix_scale.scale
+    sc = loc.estimator.fixes.fix_scale.scale
     s_f, s_l = (sc * v for v in weight_sigmas(loc.p.ukf, 0.7))
     u = np.array([-math.sin(q.heading), math.cos(q.heading)])  # left of the heading
     S = loc.timeline.ukf.P[:2, :2] + fix_covariance(q.heading, s_f, s_l)
@@ -151,7 +151,7 @@ def test_displaced_estimate_is_detected_and_recovered():
     frames = np.arange(len(err)) * 0.1
     after = err[frames > t_rec + 1.0]
     assert np.median(after) < 1.0 and after.max() < 5.0  # back to normal tracking, far inside the capture radius
-    assert loc.estimator.lock.state is LockState.LOCKED
+    assert loc.estimator.fixes.lock.state is LockState.LOCKED
 
 
 def _biased(drive, bias: float):
@@ -195,7 +195,7 @@ def test_zero_velocity_updates_hold_a_stopped_vehicle_without_fixes():
 def test_no_fix_run_grows_uncertainty_and_declares_loss_honestly():
     d = _drive()
     loc, err, sig = run_plus(d, planted=lambda q: [None] * len(q.crop_centres))
-    assert loc.estimator.lock.losses == 1
+    assert loc.estimator.fixes.lock.losses == 1
     assert sig[-1] > sig[10]
     assert all(isinstance(v, float) and math.isfinite(v) for v in sig)
 
@@ -284,7 +284,7 @@ def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
             assert np.all((gaps >= 1.5) & (gaps <= 6.0))
             # the next query waits for the distance trigger again (40 m after the accepted one)
             assert at(after[3].capture_t) - at(after[2].capture_t) > 30.0
-        assert loc.estimator.lock.losses == 0 and _rms(err) < 1.5
+        assert loc.estimator.fixes.lock.losses == 0 and _rms(err) < 1.5
     # an unhealthy filter (prior 1-sigma at the covariance trigger) takes the weak answer at once
     params = dataclasses.replace(PLUS, plus=dataclasses.replace(base, defer_w=0.6, trigger_sigma_m=0.01))
     loc, _, _ = run_plus(d, params=params, planted=weak_after_60)

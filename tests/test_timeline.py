@@ -38,7 +38,7 @@ def _run(params: LocaliserParams, fix_late: bool, gnss: bool, forget_gnss: bool 
         if gnss and s.t >= 2.0 and "gnss" not in done:
             base = _frame_at(loc, 2.0)
             tl.correct_batch(base, [(base, GnssCorrection(GnssMeasurement(2.0, np.array([10.6, 1.1]), 4.0),
-                                                          loc.estimator))])
+                                                          loc.estimator.gnss))])
             done.add("gnss")
         if forget_gnss and s.t >= 3.5 and "forget" not in done:
             assert tl.forget(_frame_at(loc, 1.5), Tick.drop_gnss)
@@ -73,7 +73,7 @@ def test_corrections_keep_their_stage_order_on_a_frame():
         loc.add_imu(s)
     tl = loc.timeline
     tick = tl.history[-1]
-    tl.correct_batch(tick, [(tick, GnssCorrection(GnssMeasurement(1.4, np.array([7.0, 0.2]), 4.0), loc.estimator))])
+    tl.correct_batch(tick, [(tick, GnssCorrection(GnssMeasurement(1.4, np.array([7.0, 0.2]), 4.0), loc.estimator.gnss))])
     tl.fix(tick, np.array([7.1, 0.3]), 1.5, 3.0, heading=(0.01, 0.05))
     assert [type(c).__name__ for c in tick.corrections] == ["PositionFix", "HeadingFix", "GnssCorrection"]
     assert [m.t for m in tick.gnss] == [1.4]

@@ -10,10 +10,10 @@ drive, in either estimator mode.
 
 The Localiser composes its parts and owns nothing else: the `timeline` (the preintegrator, the UKF, the frame
 history and every correction's rewind and replay), the `desk` (the query in flight), the real-GNSS fusion
-(`gnss`), the offline `record`, and the `estimator`: what differs between the paper's method (`PaperMode`,
-paper.py, when params.plus is None) and taco+ (`PlusMode`, plus/mode.py), both answering `Estimator` (mode.py).
-taco+'s aiding (stops, the camera's speed, the drive command, the safety guard, the lock) is the estimator's
-`aids`, which the paper's method has none of.
+(`gnss`), the offline `record`, and the `estimator` (estimator.py): what differs between the paper's method
+(paper.py, when params.plus is None) and taco+ (plus/estimator.py), as parts chosen from the parameters: the
+filter, the trigger, the fix policy, the GNSS update, the reported accuracy and the aiding (stops, the camera's
+speed, the drive command, the safety guard, the lock), the last two taco+'s only.
 
 World frame: ENU metres relative to the origin (the start-up GNSS reading); heading ENU radians; autopilot s.
 """
@@ -24,10 +24,10 @@ from typing import Sequence
 
 from taco_mav.core.frames import FixOutcome
 from taco_mav.core.gnss.fusion import GnssFusion
-from taco_mav.core.mode import Estimator
-from taco_mav.core.paper import PaperMode
+from taco_mav.core.estimator import Estimator
+from taco_mav.core.paper import make_paper
 from taco_mav.core.params import LocaliserParams
-from taco_mav.core.plus.mode import PlusMode
+from taco_mav.core.plus.estimator import make_plus
 from taco_mav.core.queries import Answering, QueryDesk
 from taco_mav.core.run_record import RunRecord
 from taco_mav.core.search import search_centres
@@ -50,10 +50,10 @@ class Localiser:
         self.timeline = Timeline(params, t0, x, y, heading, speed, heading_offset, self.record)
         self.desk = QueryDesk(t0, params.trigger.query_timeout_s, params.latency.apply_on_arrival, self.record)
         self.gnss = GnssFusion(self.timeline, params.gnss)
-        self.estimator: Estimator = (PaperMode(self.timeline, self.desk, params) if params.plus is None
-                                     else PlusMode(self.timeline, self.desk, self.gnss, params, params.plus))
-        self.gnss.serve(self.estimator)
-        self.timeline.start(self.estimator.make_ukf(x, y, heading), self.estimator.predict)
+        self.estimator: Estimator = (make_paper(self.timeline, self.desk, params) if params.plus is None
+                                     else make_plus(self.timeline, self.desk, self.gnss, params, params.plus))
+        self.gnss.serve(self.estimator.gnss, self.estimator.aids)
+        self.timeline.start(self.estimator.filter.make_ukf(x, y, heading), self.estimator.filter.predict)
         self.aids = self.estimator.aids
         self.takes_ground_motion = self.aids is not None  # add_ground_motion is used (a speed measurement)
         if self.record is not None and self.aids is not None:
@@ -89,7 +89,7 @@ class Localiser:
         if aids is not None:
             aids.close_frame(tick)
         if self.record is not None:
-            self.record.frame(tick, self.estimator.odometry_sigma(tick), tl.ukf)
+            self.record.frame(tick, self.estimator.filter.odometry_sigma(tick), tl.ukf)
         self.gnss.on_frame(tick)
         self._maybe_trigger()
 
@@ -97,7 +97,7 @@ class Localiser:
         tl = self.timeline
         if not self.desk.free(tl.t):
             return
-        plan = self.gnss.plan(self.estimator.plan_search())
+        plan = self.gnss.plan(self.estimator.trigger.plan())
         if plan is None:
             return
         reason, bias, offsets = plan
@@ -128,7 +128,7 @@ class Localiser:
         update, replay) unless params.latency.apply_on_arrival."""
         answer = self.desk.take(query_id, results, self.timeline.t)
         if isinstance(answer, Answering):
-            out = self.estimator.judge(answer, results)
+            out = self.estimator.fixes.judge(answer, results)
         else:
             out = answer
             if self.aids is not None:
@@ -164,12 +164,14 @@ class Localiser:
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> Estimate:
-        """The current estimate: the filter's own (`Timeline.estimate`) with the estimator's reported accuracy
-        (taco+: the fixes' variance factor, floors) and its state in `extra`; while a receiver is fused, at least
+        """The current estimate: the filter's own (`Timeline.estimate`) with taco+'s reported accuracy (the fixes'
+        variance factor, floors) and its state in `extra`; while a receiver is fused, at least
         what the last camera check saw of its error (`GnssFusion.report`)."""
         tl = self.timeline
-        own = tl.estimate(tl.t - self.desk.answered_t)
-        return self.gnss.report(self.estimator.report(own))
+        est = tl.estimate(tl.t - self.desk.answered_t)
+        if self.estimator.report is not None:
+            est = self.estimator.report.report(est)
+        return self.gnss.report(est)
 
     def smoothed(self) -> SmoothResult:
         """Run the Pose2 smoother over everything recorded (offline; requires record=True)."""

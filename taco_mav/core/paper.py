@@ -1,7 +1,8 @@
-"""The paper's method (TACO, Sec. III) as the Localiser's mode: the error model's composite error sets the process
-noise (Sec. III-F) and the dual trigger with its forward-biased cross search (Sec. III-D); an answer's best
-candidate is taken behind the yaw gate (Sec. III-E) with the w -> sigma mapping (Sec. III-F); a real GNSS
-reading re-anchors the filter (position := the reading). Nothing here goes beyond the paper; taco+ is plus/.
+"""The paper's method (TACO, Sec. III) as the Localiser's estimator (`make_paper`): the error model's composite
+error sets the process noise (`PaperFilter`, Sec. III-F); the dual trigger with its forward-biased cross search
+(`PaperTrigger`, Sec. III-D); an answer's best candidate is taken behind the yaw gate (`BestCandidate`, Sec.
+III-E) with the w -> sigma mapping (Sec. III-F); a real GNSS reading re-anchors the filter (`ReAnchor`: position
+:= the reading). Nothing here goes beyond the paper; taco+ is plus/.
 
 World frame ENU metres, headings ENU radians, times autopilot seconds.
 """
@@ -15,6 +16,7 @@ import numpy as np
 
 from taco_mav.core.answer_check import credible, supported
 from taco_mav.core.error_model import ErrorTerms
+from taco_mav.core.estimator import Estimator, Plan
 from taco_mav.core.frames import FixOutcome, FixReason, GnssMeasurement, Tick
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
 from taco_mav.core.params import LocaliserParams
@@ -28,20 +30,23 @@ from taco_mav.core.search import (
     trigger_reason,
 )
 from taco_mav.core.timeline import Timeline
-from taco_mav.core.types import Estimate, FixQuery, MatchResult
+from taco_mav.core.types import FixQuery, MatchResult
 from taco_mav.core.ukf import PlanarUkf, process_noise, process_sigmas, weight_sigmas
 
 _NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
 
 
-class PaperMode:
-    """The paper's estimator (see mode.Estimator) on the Localiser's `timeline` and `desk`."""
+def make_paper(timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> Estimator:
+    """The paper's estimator on the Localiser's `timeline` and `desk`."""
+    return Estimator(PaperFilter(params, timeline.frame_dt), PaperTrigger(timeline, desk, params),
+                     BestCandidate(timeline, desk, params), ReAnchor(timeline, params), report=None, aids=None)
 
-    gnss_replaces = True
-    aids = None  # nothing beyond the paper
 
-    def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> None:
-        self.timeline, self.desk, self.p = timeline, desk, params
+class PaperFilter:
+    """(x, y, theta) with the paper's process noise (Sec. III-F); frame_dt: the filter's frame period, s."""
+
+    def __init__(self, params: LocaliserParams, frame_dt: float) -> None:
+        self.p, self.frame_dt = params, frame_dt
 
     def make_ukf(self, x: float, y: float, heading: float) -> PlanarUkf:
         """(x, y, theta) with the paper's initial sigmas (ukf.initial_sigma_xy_m, initial_sigma_theta_rad)."""
@@ -60,8 +65,7 @@ class PaperMode:
         """UKF predict over one frame with the paper's process noise (Sec. III-F)."""
         inc = tick.inc
         s_f, s_l = self._process_sigmas(terms.epsilon)
-        Q = process_noise(float(ukf.x[2]), s_f, s_l, self.p.ukf.sigma_theta_rad, max(inc.dt, 1e-6),
-                          self.timeline.frame_dt)
+        Q = process_noise(float(ukf.x[2]), s_f, s_l, self.p.ukf.sigma_theta_rad, max(inc.dt, 1e-6), self.frame_dt)
         ukf.predict(inc.d_fwd, inc.d_left, inc.d_theta, Q)
 
     def odometry_sigma(self, tick: Tick) -> float:
@@ -69,8 +73,15 @@ class PaperMode:
         s_f, s_l = self._process_sigmas(tick.terms.epsilon)
         return 0.5 * (s_f + s_l)
 
-    # ------------------------------------------------------------------ trigger and answers
-    def plan_search(self) -> tuple[str, float, np.ndarray] | None:
+
+
+class PaperTrigger:
+    """The paper's dual trigger (Sec. III-D) on the error model's terms and the time since the last answer."""
+
+    def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> None:
+        self.timeline, self.desk, self.p = timeline, desk, params
+
+    def plan(self) -> Plan | None:
         """The paper's dual trigger and search (Sec. III-D)."""
         tl, tr = self.timeline, self.p.trigger
         eps = tl.terms.epsilon
@@ -80,8 +91,17 @@ class PaperMode:
         bias = forward_bias(eps, tr.forward_bias_k, tr.forward_bias_cap_m) if tr.forward_bias else 0.0
         return reason.value, bias, cross_offsets(cross_spacing(eps, tr.cross_k, tr.cross_cap_m), tr.multi_crop)
 
+
+
+class BestCandidate:
+    """The best candidate (argmax w, Sec. III-E) behind the yaw gate, with the w -> sigma mapping (Sec. III-F);
+    with the answer check on (profile `answer:`), only a credible and supported one."""
+
+    def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> None:
+        self.timeline, self.desk, self.p = timeline, desk, params
+
     def judge(self, answer: Answering, results: Sequence[MatchResult | None]) -> FixOutcome:
-        """The best candidate (argmax w, Sec. III-E) behind the yaw gate, with the w -> sigma mapping."""
+        """The answer's best candidate fused at its capture frame, or the reason it is not."""
         q, now = answer.query, answer.now
         a = self.p.answer
         checked = a.decoys > 0 or a.w_min > 0.0 or a.min_agree_share > 0.0  # off under the paper's defaults
@@ -116,11 +136,16 @@ class PaperMode:
                        if r is not None else (np.nan, np.nan) for i, r in enumerate(results)])
         return supported(xy, k, q.crop_centres, self.p.answer)
 
-    def report(self, est: Estimate) -> Estimate:
-        """The filter's own estimate, as it is."""
-        return est
 
-    # ------------------------------------------------------------------ a real GNSS: re-anchoring
+
+class ReAnchor:
+    """A real GNSS reading re-anchors the filter: position := the reading; its speed the preintegrator's."""
+
+    replaces = True
+
+    def __init__(self, timeline: Timeline, params: LocaliserParams) -> None:
+        self.timeline, self.p = timeline, params
+
     def apply(self, ukf: PlanarUkf, tick: Tick, m: GnssMeasurement) -> None:
         """The reading re-anchors the filter at `tick`: position := the reading, position covariance :=
         sigma_h^2 I (uncorrelated with the heading)."""
@@ -131,7 +156,7 @@ class PaperMode:
         P[:2, :2] = m.var_xy * np.eye(2)
         ukf.set_state(x, P)
 
-    def gnss_fused(self, tick: Tick, m: GnssMeasurement) -> None:
+    def fused(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch, the newest reading's speed re-anchors the preintegrator's: the speed error at its frame
         less what later re-anchorings set already, kept as `dv_fed` on the latest frame."""
         if m.speed is None:
@@ -144,7 +169,7 @@ class PaperMode:
         tl.history[-1].dv_fed += new - tl.pre.speed
         tl.pre.speed = new
 
-    def gnss_anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
+    def anchor_terms(self, tick: Tick) -> tuple[float, float, float, tuple[float, float, float]]:
         """No bias states: the speed is the receiver's (sigma: the last reading's speed accuracy), the
         accelerometer bias unknown (`Anchor.bias_estimated`). The preintegrator's speed is kept after a rollback:
         without a bias state, integrating the accelerometer from the rewound frame drifts more than a receiver's

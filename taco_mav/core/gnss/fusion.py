@@ -50,7 +50,7 @@ from taco_mav.core.types import Estimate, GnssFix, GnssOutcome
 from taco_mav.core.ukf import fix_covariance
 
 if TYPE_CHECKING:
-    from taco_mav.core.mode import Estimator, Plan
+    from taco_mav.core.estimator import Aids, GnssPolicy, Plan
 
 
 class GnssFusion:
@@ -60,7 +60,8 @@ class GnssFusion:
 
     def __init__(self, timeline: Timeline, params: GnssParams) -> None:
         self.timeline, self.p = timeline, params
-        self.mode: Estimator
+        self.update: GnssPolicy
+        self.aids: Aids | None = None
         self.guard: GnssGuard | None = None  # made at the first reading
         self._dr: DeadReckoner | None = None
         self._snaps: deque[tuple[int, DrSnap]] = deque()  # (frame node, dead reckoner at its end)
@@ -73,9 +74,9 @@ class GnssFusion:
         self._entry_t = -math.inf  # first accepted reading since the receiver was lost or rejected
         self.fused = 0  # readings fused so far
 
-    def serve(self, estimator: Estimator) -> None:
-        """The estimator whose filter the readings update."""
-        self.mode = estimator
+    def serve(self, update: GnssPolicy, aids: Aids | None) -> None:
+        """What a reading does to the estimator's filter, and the estimator's aiding (told of a rollback)."""
+        self.update, self.aids = update, aids
 
     # ------------------------------------------------------------------ the reading
     def add(self, fix: GnssFix) -> GnssOutcome:
@@ -107,7 +108,7 @@ class GnssFusion:
         pred = self.timeline.ukf.x[:2] + np.array([dx, dy])
         ref, vref = self._reference(gp.reference_lag_s), self._reference(gp.velocity_lag_s)
         v = guard.check(self.timeline.t, z_now, self._sigma_h, pred, self.timeline.ukf.P[:2, :2].copy(), self._dr.snap(),
-                        None if ref is None else self._anchor(ref), replace=self.mode.gnss_replaces, vel=vel,
+                        None if ref is None else self._anchor(ref), replace=self.update.replaces, vel=vel,
                         sigma_v=max(fix.sigma_v_mps if math.isfinite(fix.sigma_v_mps) else 0.0, gp.sigma_v_min_mps),
                         vel_anchor=None if vref is None else self._anchor(vref))
         if not v.accept:
@@ -125,7 +126,7 @@ class GnssFusion:
             self._entry_t = self.timeline.t
         self._pending.append((tick, meas))
         self._flush()
-        return GnssOutcome(True, "anchored" if self.mode.gnss_replaces else "fused", v.nis, v.window_nis,
+        return GnssOutcome(True, "anchored" if self.update.replaces else "fused", v.nis, v.window_nis,
                            v.innovation_m)
 
     def _measurement(self, fix: GnssFix, xy: np.ndarray, vel: np.ndarray | None,
@@ -168,9 +169,9 @@ class GnssFusion:
         if not due:
             return
         self._flush_t = self.timeline.t
-        self.timeline.correct_batch(due[0][0], [(h, GnssCorrection(m, self.mode)) for h, m in due])
+        self.timeline.correct_batch(due[0][0], [(h, GnssCorrection(m, self.update)) for h, m in due])
         self.fused += len(due)
-        self.mode.gnss_fused(due[-1][0], due[-1][1])
+        self.update.fused(due[-1][0], due[-1][1])
 
     # ------------------------------------------------------------------ the guard's inputs
     def on_imu(self, t: float, dt: float) -> None:
@@ -197,7 +198,7 @@ class GnssFusion:
         snap = self._snap(tick)
         if snap is None:
             return None
-        speed, bias, beta, sigmas = self.mode.gnss_anchor_terms(tick)
+        speed, bias, beta, sigmas = self.update.anchor_terms(tick)
         # its error about the receiver's bias track. Fused GNSS within gap_s before: P less the receiver's bias
         # (which P holds and the later readings share), at least the white noise a GNSS-following filter
         # keeps; else P plus the receiver's bias.
@@ -206,9 +207,9 @@ class GnssFusion:
         tied = any(h.gnss for h in self.timeline.history if tick.t - gp.gap_s <= h.t <= tick.t)
         cov = tick.P[:2, :2] + (-bias_var if tied else bias_var) * np.eye(2)
         w, V = np.linalg.eigh(0.5 * (cov + cov.T))
-        cov = (V * np.maximum(w, filter_offset_variance(sh, gp, self.mode.gnss_replaces))) @ V.T
+        cov = (V * np.maximum(w, filter_offset_variance(sh, gp, self.update.replaces))) @ V.T
         return Anchor(tick.t, tick.x[:2].copy(), cov, speed, bias, beta, snap, *sigmas,
-                      bias_estimated=not self.mode.gnss_replaces)
+                      bias_estimated=not self.update.replaces)
 
     def _reference(self, lag: float) -> Tick | None:
         """The frame a shadow of the guard starts from: the newest at least `lag` seconds old (the oldest in the
@@ -247,8 +248,8 @@ class GnssFusion:
         them (camera fixes stay)."""
         if not self.timeline.forget(base, Tick.drop_gnss):
             return
-        if self.mode.aids is not None:
-            self.mode.aids.after_gnss_rollback()
+        if self.aids is not None:
+            self.aids.after_gnss_rollback()
         if self.guard is not None:
             self.guard.hold_anchor = self._anchor(base)
 

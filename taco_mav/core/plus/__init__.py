@@ -1,2 +1,3 @@
-"""taco+ (issue 7 and after, beyond the paper): `mode.PlusMode`, the Localiser's mode that owns the parts in this
-package (noise model, search, lock, held answers, stops, safety guard, camera speed, GNSS update)."""
+"""taco+, beyond the paper: `estimator.make_plus` composes the Localiser's estimator from the parts in this package
+(filter, trigger, fix policy, GNSS update, reported accuracy, aiding, and what they share: the lock, held answers,
+stops, the safety guard, the camera speed's scale error, the noise factors)."""

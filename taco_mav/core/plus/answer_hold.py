@@ -1,7 +1,7 @@
 """taco+'s bookkeeping of answers that were not simply applied (issues 7, 17, 19): answers held until a second one
 agrees (a jump the IMU track does not allow, a recovery candidate), failed triggers (loss of lock, the widened
 uncertainty, rejections that agree and so widen the reported accuracy) and the settling of lock after an
-applied fix. A part of `PlusMode`, acting on the filter of the Localiser it serves.
+applied fix. A part of taco+ (estimator.py), acting on the Localiser's timeline.
 
 World frame ENU metres, times autopilot seconds; a correction is z - x (the fix minus the estimate); odometer
 readings (odo) metres driven since the start.

@@ -1,6 +1,6 @@
 """taco+'s use of the camera's speed (issue 19): the ground-plane motion between two frames
 (`cvgl.ground_motion`, measured by the daemon's motion loop) as a measurement of the speed error, and the
-receiver's ground speed checked against it (`speed_check`, issue 14). A part of `PlusMode`, acting on the filter
+receiver's ground speed checked against it (`speed_check`). A part of taco+ (estimator.py), acting on the filter
 of the Localiser it serves.
 
 Speeds m/s, distances metres, times autopilot seconds.
@@ -23,7 +23,7 @@ from taco_mav.core.types import GnssFix, GnssOutcome
 
 class CameraSpeed:
     """The camera's speed for the Localiser's `timeline`: `feedback` moves the speed error into the preintegrator
-    (PlusMode.feedback); stops (`zero`) and the safety guard (`guard`) hear what the camera saw."""
+    (`PlusAids.feedback`); stops (`zero`) and the safety guard (`guard`) hear what the camera saw."""
 
     def __init__(self, timeline: Timeline, gnss: GnssFusion, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
                  feedback: Callable[[Tick], None]) -> None:

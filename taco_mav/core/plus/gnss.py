@@ -1,5 +1,5 @@
 """taco+'s use of a real GNSS (the measurement and its checks are `gnss/fusion.py`): a Kalman update of position,
-speed and course on the taco+ state, instead of the paper mode's re-anchoring. A part of `PlusMode`, applied
+speed and course on the taco+ state, instead of the paper mode's re-anchoring. A part of taco+ (estimator.py), applied
 through the timeline as a `GnssCorrection`.
 
 World frame ENU metres, speeds m/s, angles radians (ENU, CCW).
@@ -24,8 +24,10 @@ from taco_mav.core.ukf import PlanarUkf, joseph_update
 
 class KalmanGnss:
     """Real-GNSS updates on the taco+ filter of the Localiser's `timeline`: `feedback` moves the speed error into the
-    preintegrator (PlusMode.feedback); a speed reading is a speed observation for stops (`zero`); the safety
+    preintegrator (`PlusAids.feedback`); a speed reading is a speed observation for stops (`zero`); the safety
     `guard` restarts its IMU-only track after a batch."""
+
+    replaces = False  # a Kalman update, not a re-anchoring
 
     def __init__(self, timeline: Timeline, q: PlusParams, zero: ZeroVelocity, guard: SafetyGuard,
                  feedback: Callable[[Tick], None]) -> None:
@@ -59,7 +61,7 @@ class KalmanGnss:
             P[:2, :2] += (floor - lo) * np.eye(2)
         ukf.set_state(x, P)
 
-    def fused_live(self, tick: Tick, m: GnssMeasurement) -> None:
+    def fused(self, tick: Tick, m: GnssMeasurement) -> None:
         """After a batch of readings: feed the speed error back, as after an accepted fix."""
         if self.timeline.history:
             self._feedback(self.timeline.history[-1])
@@ -76,10 +78,3 @@ class KalmanGnss:
         var_heading = float(P[5, 5]) if len(x) > 5 else float(P[2, 2])
         sig = tuple(math.sqrt(max(v, 0.0)) for v in (float(P[3, 3]), float(P[4, 4]), var_heading))
         return float(tick.inc.speed_end + tick.dv_fed + x[3]), float(x[4]), beta, sig
-
-    def after_rollback(self) -> None:
-        """The replay left the undone speed corrections in the speed error: feed it back."""
-        if self.timeline.history:
-            self._feedback(self.timeline.history[-1])
-        if self.q.guard:
-            self.guard.reset()

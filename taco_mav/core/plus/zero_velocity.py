@@ -5,7 +5,7 @@ a frame is a stop only when the IMU is still and the speed is one the filter can
 IMU may have lost since the speed was last observed (a fix, a stop, a camera speed) is what its accelerometer
 error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a smooth 3 m/s cruise fell
 inside 3 sigma within seconds and the update pinned it to zero). Never while the autopilot drives or the camera
-sees the ground move, nor while the safety guard holds updates off. A part of `PlusMode`.
+sees the ground move, nor while the safety guard holds updates off. A part of taco+ (estimator.py).
 
 Speeds m/s, times autopilot seconds.
 """
