@@ -15,7 +15,7 @@ from typing import Sequence
 from taco_mav import checks
 from taco_mav.bench import SECTION_NAMES
 from taco_mav.cli_support import TacoArgumentParser, add_global_flags, configure_logging, package_version, run_command
-from taco_mav.commands import campaign, live, offline
+from taco_mav.commands import campaign, live, mission, offline
 from taco_mav.config.fields import Estimator
 from taco_mav.config.profile import MATCHERS
 
@@ -191,6 +191,48 @@ def build_parser() -> argparse.ArgumentParser:
                    "gaps and fix types from S s of drive time on (the companion's start-up; default 0)")
     _force(p, "the results")
     p.set_defaults(func=live.cmd_sim)
+
+    p = sub.add_parser("mission", parents=[common], help="fly a square mission on ArduPilot Rover SITL or PX4 SITL "
+                       "(SIH) with the daemon in the loop; its scored figures to JSON (docs/sitl.md, docs/px4.md)")
+    p.add_argument("--autopilot", required=True, choices=mission.AUTOPILOTS, help="ardupilot: Rover SITL; px4: SIH")
+    p.add_argument("--ardurover", help="ardupilot: the Rover SITL binary (default $ARDUROVER)")
+    p.add_argument("--px4", help="px4: the PX4 SITL binary (default $PX4_SITL)")
+    p.add_argument("--out", required=True, help="JSON file for the mission's scored figures")
+    p.add_argument("--run-dir", help="folder for the run: the world, the simulator's and the daemon's logs, tlogs, "
+                   "CSVs, result.json (default: --out without its suffix; refused if it holds a result, unless "
+                   "--force)")
+    p.add_argument("--setup", default="solo", choices=mission.SETUPS["px4"], help="solo: taco-mav the only GNSS; "
+                   "handover: the simulated receiver steers until --gnss-off-after, then ours; gnss (px4): the "
+                   "simulated receiver only, no daemon (default solo)")
+    p.add_argument("--estimator", default="taco+", choices=ESTIMATORS, help="the daemon's estimator (default taco+)")
+    p.add_argument("--profile", help="daemon profile (default ardupilot_rover / px4_rover; handover: ..._gps2)")
+    p.add_argument("--laps", type=int, default=2, help="laps of the square (default 2)")
+    p.add_argument("--side", type=float, default=60.0, help="the square's side, m (default 60)")
+    p.add_argument("--speed", "--wp-speed", "--cruise-speed", dest="speed", type=float, default=3.0,
+                   help="cruise, m/s: ArduPilot's WP_SPEED, PX4's RO_SPEED_LIM (default 3)")
+    p.add_argument("--gnss-off-after", type=float, default=30.0, help="handover: seconds after AUTO the simulated "
+                   "receiver goes off (default 30)")
+    p.add_argument("--timeout", type=float, default=300.0, help="seconds allowed after AUTO (default 300)")
+    p.add_argument("--realism", choices=("flat", "3d"), default="flat", help="the world the camera sees (default "
+                   "flat)")
+    p.add_argument("--world-seed", type=int, default=7, help="the world's seed (default 7)")
+    p.add_argument("--through", action="store_true", help="3d: drive through the buildings and trees")
+    p.add_argument("--daemon-arg", action="append", default=[], help="one more `taco-mav run` option (repeat: "
+                   "--daemon-arg=--record --daemon-arg=--shadow)")
+    p.add_argument("--restart-after", type=float, help="SIGTERM the daemon this many seconds after AUTO and start "
+                   "it again")
+    p.add_argument("--fault", choices=mission.FAULTS, help="ardupilot: a fault on cue (glitch, spoof: handover)")
+    p.add_argument("--fault-after", type=float, help="ardupilot: seconds after AUTO the fault starts (default 60)")
+    p.add_argument("--map-seed", type=int, help="ardupilot: the daemon gets another world's map (this seed)")
+    p.add_argument("--daemon-origin", action="store_true", help="ardupilot: the daemon gets --origin (home)")
+    p.add_argument("--gcs-origin", action=argparse.BooleanOptionalAction, help="px4: the ground station sets "
+                   "EKF2's origin at home (default: solo only)")
+    p.add_argument("--params-file", help="px4: QGroundControl parameter file (default: the shipped "
+                   "px4_rover_<setup>.params; '' for none)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="px4: a parameter at boot "
+                   "(repeatable)")
+    _force(p, "the run folder")
+    p.set_defaults(func=mission.cmd_mission)
 
     p = sub.add_parser("calibrate", parents=[common], help="camera intrinsics and lens distortion from chessboard "
                        "photos, written as OpenCV FileStorage YAML (the profile's camera.calibration)")

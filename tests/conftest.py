@@ -4,7 +4,6 @@ repository (the CI layout): `taco_mav.datasets.kitti.default_kitti_root`."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,8 +13,6 @@ from taco_mav.datasets.kitti import default_kitti_root
 
 _root = default_kitti_root()
 KITTI_ROOT = None if _root is None else _root.resolve()  # absolute: a test may change the working directory
-# the development tools (tools/: the SITL harnesses, the appearance-gap maker gap.py) import as top-level modules
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 
 @pytest.fixture(scope="session")

@@ -37,7 +37,7 @@ LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"datasets"}),
     frozenset({"evaluation"}),
     frozenset({"sim"}),
-    frozenset({"bench", "reliability", "demo", "calibrate", "checks"}),
+    frozenset({"bench", "reliability", "closedloop", "demo", "calibrate", "checks"}),
     frozenset({"campaign"}),  # runs of the use cases (SITL missions, the simulator, evaluations) on Ray
     frozenset({"cli", "cli_support", "commands"}),
 )
@@ -45,7 +45,7 @@ CORE_MAY_IMPORT = ("taco_mav.core", "taco_mav.errors")
 IO_LIBRARIES = frozenset({"pymavlink", "rasterio", "cv2", "serial", "yaml", "socket", "matplotlib", "tqdm", "PIL",
                           "torch", "pyproj", "requests", "urllib", "http", "subprocess", "sqlite3"})
 LIVE_MUST_NOT_REACH = ("taco_mav.datasets", "taco_mav.sim", "taco_mav.evaluation", "taco_mav.bench",
-                       "taco_mav.reliability", "taco_mav.demo", "taco_mav.cli")
+                       "taco_mav.reliability", "taco_mav.closedloop", "taco_mav.demo", "taco_mav.cli")
 # Tolerated upward imports, each (importer, imported prefix, the class the import must sit in; "" outside
 # classes). Empty: the last one (camera.WorldSource building datasets/synthetic's renderers) went when WorldSource
 # moved to datasets/synthetic/world_camera.py and `open_camera` took the `world:` scheme from a registry.

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from gap import MapGap, alter_mosaic, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import confidence_figures, confidence_samples, textured_mosaic, write_geotiff
@@ -16,6 +15,7 @@ from taco_mav.config import CameraConfig, ClassicalMatcherConfig
 from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE, W_CALIBRATION, ClassicalMatcher, psr_weight
 from taco_mav.cvgl.satellite import SatelliteMap
+from taco_mav.datasets.synthetic.gap import MapGap, alter_mosaic, occlude_frame
 from taco_mav.datasets.synthetic.render import GroundRenderer
 from taco_mav.errors import MatcherError
 
@@ -134,7 +134,7 @@ def test_chance_peaks_get_low_weight_and_correct_matches_high() -> None:
     np.testing.assert_allclose(samples["w"], [psr_weight(p, mid, scale) for p in samples["psr"]])
 
 
-# ---------------------------------------------------------------- appearance gap (issue 17)
+# ---------------------------------------------------------------- appearance gap
 GAP_POSES = 12
 
 
@@ -226,7 +226,7 @@ def test_the_correlation_is_the_circular_cross_correlation_over_the_searched_shi
 
 def test_a_short_range_template_smaller_than_the_crop_still_matches(world) -> None:
     """max_range_m 15 m: the template is much smaller than the crop, every searched shift starts inside it, and the
-    FFT must still hold the whole crop (before issue 38 this raised a broadcast error)."""
+    FFT must still hold the whole crop (a broadcast error otherwise)."""
     renderer, smap, _ = world
     matcher = ClassicalMatcher(ClassicalMatcherConfig(max_range_m=15.0), renderer.camera)
     true_en = np.array([WEST + 150.0, NORTH - 140.0])

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
-from gap import MapGap, alter_mosaic, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
 
 from taco_mav.config import Estimator, load_profile, replace_in
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic import build_world, load_world
+from taco_mav.datasets.synthetic.gap import MapGap, alter_mosaic, occlude_frame
 from taco_mav.evaluation.runner import run_drive
 
 

@@ -1,4 +1,4 @@
-"""The `taco-mav` command line (issue 16): --version, global flags before or after the subcommand, negative
+"""The `taco-mav` command line: --version, global flags before or after the subcommand, negative
 option values, logging through the progress bars, results folders refused unless --force, one timestamped
 folder per daemon session, work kept on a late error (bench, drift), Ctrl-C -> 130 with what was played
 written, and the names tables and plots carry. Bad-input sweep: tests/test_cli_errors.py."""

@@ -1,6 +1,7 @@
-"""Issue 16's error contract, swept over every `taco-mav` command as real subprocesses: each bad input exits with
-1 (data/runtime) or 2 (usage/configuration) within 30 s, prints no traceback, at most 5 lines, and the error line
-`taco-mav CMD: error: ...` names the offending option, file or value. Run 3 at a time (CI has 2 cores)."""
+"""The command line's error contract (docs/cli.md), swept over every `taco-mav` command as real subprocesses: each
+bad input exits with 1 (data/runtime) or 2 (usage/configuration) within 30 s, prints no traceback, at most 5 lines,
+and the error line `taco-mav CMD: error: ...` names the offending option, file or value. Run 3 at a time (CI has 2
+cores)."""
 
 from __future__ import annotations
 
@@ -163,6 +164,12 @@ CASES: dict[str, Case] = {
     "demo_out_unwritable": Case("demo --out {T}/afile/d", 2, ("--out {T}/afile/d",)),
     "demo_run_exists": Case("demo --out {T}/demo", 2, ("{T}/demo/taco+-classical", "--force")),
     "demo_estimator_unknown": Case("demo --out {T}/d --estimator ekf", 2, ("--estimator", "ekf")),
+    # mission
+    "mission_binary_missing": Case("mission --autopilot ardupilot --ardurover {T}/nobin --out {T}/m.json", 2,
+                                   ("--ardurover {T}/nobin", "no such file")),
+    "mission_option_of_px4": Case("mission --autopilot ardupilot --param X=1 --out {T}/m.json", 2,
+                                  ("--param", "px4 only")),
+    "mission_autopilot_unknown": Case("mission --autopilot betaflight --out {T}/m.json", 2, ("--autopilot",)),
     # the command itself
     "command_unknown": Case("calibrat --images x", 2, ("calibrat",)),
     "command_missing": Case("", 2, ("COMMAND",)),
@@ -202,7 +209,7 @@ def test_bad_input_is_one_clean_line(outcomes: dict[str, tuple[Outcome, Path]], 
     errors = [ln for ln in lines if ": error: " in ln]
     assert len(errors) == 1, res.out
     command = case.args.split()[0] if case.args and not case.args.startswith("-") else ""
-    if command in ("bench", "world", "eval", "drift", "run", "sim", "calibrate", "demo"):
+    if command in ("bench", "world", "eval", "drift", "run", "sim", "calibrate", "demo", "mission"):
         assert errors[0].startswith(f"taco-mav {command}: error: "), errors[0]
     for needle in case.needles:
         assert needle.replace("{T}", str(root)) in errors[0], errors[0]
@@ -211,7 +218,7 @@ def test_bad_input_is_one_clean_line(outcomes: dict[str, tuple[Outcome, Path]], 
 def test_nothing_was_written_by_refused_commands(outcomes: dict[str, tuple[Outcome, Path]]) -> None:
     """Refused before work: no output folder or file appears for a usage error."""
     _, root = next(iter(outcomes.values()))
-    for name in ("w", "e", "s", "d", "b.json", "c.yaml"):
+    for name in ("w", "e", "s", "d", "b.json", "c.yaml", "m.json", "m"):
         assert not (root / name).exists(), name
     assert (root / "done" / "results.json").read_text() == "{}\n"  # an earlier run's results are kept
     assert sorted(p.name for p in (root / "demo").iterdir()) == ["taco+-classical"]

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from gap import FrameGap, MapGap, alter_mosaic, occlude_frame  # tools/gap.py (conftest.py puts tools/ on the path)
 
 from taco_mav.bench.classical import textured_mosaic
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
+from taco_mav.datasets.synthetic.gap import FrameGap, MapGap, alter_mosaic, occlude_frame
 
 
 def test_alter_mosaic_is_seeded_and_changes_the_map() -> None:

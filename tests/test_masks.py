@@ -8,7 +8,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from gap import FrameGap, occlude_frame  # tools/gap.py (tests/conftest.py puts tools/ on the path)
 from rasterio.transform import from_origin
 
 from taco_mav.bench.classical import NORTH, WEST, textured_mosaic
@@ -26,6 +25,7 @@ from taco_mav.cvgl.masks import (
     vegetation_mask,
     vertical_structure_mask,
 )
+from taco_mav.datasets.synthetic.gap import FrameGap, occlude_frame
 from taco_mav.datasets.synthetic.render import GroundRenderer
 
 KITTI_IMAGES = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_images"
@@ -178,8 +178,8 @@ def _whole_image_mask(image: np.ndarray, camera: GroundCamera, opts: MaskOptions
 
 
 def test_the_mask_by_bands_is_the_whole_frame_mask_bit_for_bit(scene) -> None:
-    """Classifying the gradient band by band (the daemon's peak memory, issue 31) masks exactly the pixels the
-    whole-frame arrays did: rendered frames with and without an occluder, and the real KITTI frames."""
+    """Classifying the gradient band by band (the daemon's peak memory) masks exactly the pixels the whole-frame
+    arrays do: rendered frames with and without an occluder, and the real KITTI frames."""
     cam, frames = scene
     images = [f for k, f in enumerate(frames) for f in (f, occlude_frame(f, cam, seed=k, gap=BOX)[0])]
     for p in sorted(KITTI_IMAGES.glob("*.png")):

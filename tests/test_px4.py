@@ -1,25 +1,22 @@
 """Closed loop on PX4: the SIH Ackermann rover (PX4 SITL, no Gazebo) steered by what taco-mav sends.
 
 Runs only where `PX4_SITL` names a PX4 SITL binary (build it with ../shared/tools/build_px4_sitl.sh); each
-mission takes about 3-4 minutes of real time and one PX4 instance (>= 3). tools/px4_mission.py is the harness
-(also a command line); setup `gnss` is PX4's own simulated receiver without the daemon, the baseline the others
-are held to."""
+mission takes about 3-4 minutes of real time and one PX4 instance (>= 3). taco_mav.closedloop.px4 is the
+harness (`taco-mav mission --autopilot px4`, `tools/px4_mission.py` are its command lines); setup `gnss` is PX4's
+own simulated receiver without the daemon, the baseline the others are held to."""
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from taco_mav.closedloop.px4 import Px4MissionSpec, run_px4_mission
+from taco_mav.closedloop.scoring import accuracy_failures
+
 PX4_SITL = os.environ.get("PX4_SITL")
 pytestmark = [pytest.mark.px4, pytest.mark.skipif(
     not (PX4_SITL and Path(PX4_SITL).is_file()),
     reason="PX4 SITL not available: set PX4_SITL to a build of ../shared/tools/build_px4_sitl.sh")]
-
-sys.path.insert(0, str(ROOT / "tools"))
-from px4_mission import Px4MissionSpec, run_px4_mission  # noqa: E402
-from sitl_mission import accuracy_failures  # noqa: E402
 
 
 # What we reported covers what we had, scored where we sent it (`sent_score`). On PX4 SIH our error at send

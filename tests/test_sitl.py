@@ -1,23 +1,21 @@
 """Closed loop on a real autopilot (issue 19): ArduPilot Rover SITL steered by what taco-mav sends.
 
 Runs only where `ARDUROVER` names a SITL binary (build it with ../shared/tools/build_ardupilot_sitl.sh); each
-mission takes about 4 minutes of real time. tools/sitl_mission.py is the harness (also a command line)."""
+mission takes about 4 minutes of real time. taco_mav.closedloop.ardupilot is the harness (`taco-mav mission
+--autopilot ardupilot`, `tools/sitl_mission.py` are its command lines)."""
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from taco_mav.closedloop.ardupilot import MissionSpec, run_mission
+from taco_mav.closedloop.scoring import accuracy_failures, daemon_summary
+
 ARDUROVER = os.environ.get("ARDUROVER")
 pytestmark = [pytest.mark.sitl, pytest.mark.skipif(
     not (ARDUROVER and Path(ARDUROVER).is_file()),
     reason="ArduPilot Rover SITL not available: set ARDUROVER to a build of ../shared/tools/build_ardupilot_sitl.sh")]
-
-sys.path.insert(0, str(ROOT / "tools"))
-from sitl_faults import daemon_summary  # noqa: E402
-from sitl_mission import MissionSpec, accuracy_failures, run_mission  # noqa: E402
 
 
 def _check(res: dict, spec: MissionSpec) -> None:

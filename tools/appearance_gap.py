@@ -39,9 +39,7 @@ from taco_mav.cvgl.base import GroundFrame
 from taco_mav.cvgl.classical import ClassicalMatcher
 from taco_mav.cvgl.satellite import SatelliteMap
 from taco_mav.datasets.synthetic.drive import SyntheticDrive, load_world
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from gap import FrameGap, MapGap, alter_mosaic, occlude_frame  # noqa: E402
+from taco_mav.datasets.synthetic.gap import FrameGap, MapGap, alter_mosaic, occlude_frame
 
 log = logging.getLogger("appearance_gap")
 

@@ -1,5 +1,6 @@
-"""Faults in closed loop on ArduPilot Rover SITL (issue 31): what `tools/sitl_mission.py --fault KIND` does to the
-rover while the mission runs, `--fault-after S` seconds after AUTO. Nothing here is product code.
+"""Faults in closed loop on ArduPilot Rover SITL (issue 31): what a mission with `fault=KIND` (`taco-mav mission
+--fault KIND`, `tools/sitl_mission.py --fault KIND`) does to the rover while it runs, `fault_after_s` seconds after
+AUTO.
 
 - `camera`: the daemon's camera frames frozen for 10 s, then black for 10 s (`world:DIR?faults=FILE`,
   taco_mav/datasets/synthetic/world_faults.py);
@@ -23,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from taco_mav.daemon.eventlog import read_events
+from taco_mav.closedloop.scoring import daemon_summary
 
 KINDS = ("camera", "stall", "link", "glitch", "spoof")
 CAMERA_FREEZE_S = CAMERA_BLACK_S = 10.0
@@ -220,21 +221,3 @@ class FaultRun:
     def close(self) -> None:
         if self.relay is not None:
             self.relay.close()
-
-
-def daemon_summary(daemon_dir: Path) -> dict[str, Any]:
-    """From the daemon's event logs (daemon_dir/*/events.jsonl): its last `stats` line's counters (answers by
-    outcome, camera-speed measurements by outcome, link outages, stuck matchers) and how often its GNSS guard
-    rejected or re-accepted the receiver."""
-    stats: dict[str, Any] = {}
-    kinds: dict[str, int] = {}
-    for e in read_events(daemon_dir):
-        kind = e.get("event")
-        if kind == "stats":
-            stats = e
-        elif kind in ("gnss_rejected", "gnss_accepted_again", "gnss_lost", "lock"):
-            key = kind if kind != "lock" else f"lock_{e.get('kind')}"
-            kinds[key] = kinds.get(key, 0) + 1
-    return {"daemon_fixes": stats.get("fixes", {}), "daemon_camera_motion": stats.get("camera_motion", {}),
-            "daemon_link_outages": stats.get("link_outages"),
-            "daemon_stuck_matchers": stats.get("stuck_matchers"), "daemon_events": kinds}
