@@ -33,6 +33,7 @@ def _check(res: dict, spec: Px4MissionSpec, ekf_rms_m: float) -> None:
     assert res["true_speed_max_mps"] <= 1.5 * spec.cruise_speed, res  # no runaway
 
 
+@pytest.mark.nightly
 def test_gnss_baseline_mission_completes(tmp_path):
     """PX4's own simulated receiver, no taco-mav: what the harness measures when the navigation is good
     (2 laps of the 60 m square at 3 m/s: about 0.35-0.5 m RMS)."""
@@ -59,6 +60,7 @@ def test_handover_mission_completes_after_its_receiver_is_lost(tmp_path):
     assert not accuracy_failures(res, **PX4_COVERAGE), (accuracy_failures(res, **PX4_COVERAGE), res)
 
 
+@pytest.mark.nightly
 def test_paper_mode_never_runs_away(tmp_path):
     spec = Px4MissionSpec(setup="solo", estimator="paper", laps=1, timeout_s=150.0)
     res = run_px4_mission(Path(PX4_SITL), tmp_path, spec)

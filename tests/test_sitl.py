@@ -52,6 +52,7 @@ def test_square_mission_on_a_3d_world_with_the_shipped_profile(tmp_path):
     assert not accuracy_failures(res), (accuracy_failures(res), res)
 
 
+@pytest.mark.nightly
 def test_paper_mode_never_runs_away(tmp_path):
     spec = MissionSpec(setup="solo", estimator="paper", laps=1, timeout_s=150.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
@@ -64,6 +65,7 @@ def test_paper_mode_never_runs_away(tmp_path):
         assert res["ours_hacc_median_m"] > 5.0 and res["ours_sent_within_2_hacc"] >= 0.95, res
 
 
+@pytest.mark.nightly
 def test_daemon_restarted_mid_mission_keeps_the_rover_on_track(tmp_path):
     """Issue 30: the daemon stopped with SIGTERM 60 s into AUTO (solo, no --origin, EKF origin from the ground
     station) and started again with the same command starts where the autopilot's position puts the rover; the
@@ -86,6 +88,7 @@ def _fault_check(res: dict, spec: MissionSpec, speed: bool = True) -> None:
     assert not accuracy_failures(res), (accuracy_failures(res), res)
 
 
+@pytest.mark.nightly
 def test_camera_frozen_then_black_mid_mission(tmp_path):
     """Issue 31: the camera's frames frozen for 10 s, then black for 10 s, 40 s into AUTO. Frozen and black frames
     are refused (no fix from a place the rover has left, no speed from a picture that does not move); on the IMU
@@ -102,6 +105,7 @@ def test_camera_frozen_then_black_mid_mission(tmp_path):
     assert motion.get("frozen_frame", 0) >= 1, motion  # the camera-speed loop refuses them too
 
 
+@pytest.mark.nightly
 def test_matcher_worker_stalled_mid_mission(tmp_path):
     """Issue 31: the matcher's worker blocks for 30 s; after matcher_timeout_s the daemon abandons it, starts a
     fresh worker and the mission completes."""
@@ -112,6 +116,7 @@ def test_matcher_worker_stalled_mid_mission(tmp_path):
     assert res["daemon_fixes"].get("matcher_timeout", 0) >= 1 and res["daemon_stuck_matchers"] is not None, res
 
 
+@pytest.mark.nightly
 def test_link_to_the_autopilot_cut_for_5_s(tmp_path):
     """Issue 31: every byte between the daemon and the autopilot dropped for 5 s: the daemon notices the silence
     and carries its estimate over the gap with the uncertainty a 5 s gap at 3 m/s deserves (10 m: lock lost, fix
@@ -123,6 +128,7 @@ def test_link_to_the_autopilot_cut_for_5_s(tmp_path):
     assert res["fault_link_dropped_bytes"] > 0 and res["daemon_link_outages"] == 1, res
 
 
+@pytest.mark.nightly
 def test_receiver_glitches_while_it_steers(tmp_path):
     """Issue 31 (hand-over set-up, SITL's GNSS is GPS1 and steers the rover): the receiver jumps 20 m for 30 s
     (SITL's GPS glitch). Our guard rejects it at once and our GPS2 stays on camera and IMU with an accuracy that
@@ -134,6 +140,7 @@ def test_receiver_glitches_while_it_steers(tmp_path):
     assert res["daemon_events"].get("gnss_rejected", 0) >= 1, res["daemon_events"]
 
 
+@pytest.mark.nightly
 def test_receiver_dragged_slowly_while_it_steers(tmp_path):
     """Issue 31 (hand-over set-up): SITL's GNSS, GPS1, steering the rover, dragged east at 0.5 m/s for 40 s. Until
     the guard rejects it our GPS2 follows it, and the camera check every 5 s floors the accuracy we report at the
