@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import pytest
@@ -95,3 +96,13 @@ def test_lever_arms_load_as_tuples_and_reach_the_localiser(tmp_path):
     assert p.camera.position_frd_m == (0.8, -0.1, -0.6) and p.output.antenna_frd_m == (-0.2, 0.0, -0.4)
     assert localiser_params(p).camera_lever_fwd_left_m == (0.8, 0.1)
     assert profile_from_dict(profile_to_dict(p)) == p  # lists in the resolved config, tuples again on load
+
+
+def test_the_wheels_profile_loads_and_reaches_the_localiser():
+    p = load_profile("ardupilot_rover_wheels")
+    base = load_profile("ardupilot_rover")
+    assert p.wheels.enabled and p.wheels.pos_y_from_autopilot and p.wheels.wheel_pos_y_m == (0.15, -0.15)
+    assert dataclasses.replace(p, name=base.name, wheels=base.wheels) == base  # ardupilot_rover plus `wheels:`
+    assert localiser_params(p).wheels == p.wheels and localiser_params(base).wheels is None
+    paper = localiser_params(dataclasses.replace(p, estimator=Estimator.PAPER))
+    assert paper.plus is None  # paper mode: nothing reads the wheels

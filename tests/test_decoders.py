@@ -213,3 +213,20 @@ def test_origin_messages() -> None:
     assert d.origin(wire(lambda m: m.gps_global_origin_encode(490_000_000, 84_000_000, -2**31))) is None
     assert dict(d.rejected) == {"HOME_POSITION:unset": 1, "GPS_GLOBAL_ORIGIN:position_range": 2,
                                 "GPS_GLOBAL_ORIGIN:outside_utm": 1}
+
+
+def test_wheel_distance_from_real_bytes() -> None:
+    d = Decoders()
+    r = d.wheel_distance(wire(lambda m: m.wheel_distance_encode(123_456_000, 2, [1.25, -0.5] + [9.0] * 14)))
+    assert r.t == pytest.approx(123.456) and r.distances == (1.25, -0.5)  # only `count` wheels
+
+
+@pytest.mark.parametrize("time_usec,count,first,reason", [
+    (1_000_000, 0, 1.0, "count"), (1_000_000, 17, 1.0, "count"), (0, 2, 1.0, "no_time"),
+    (1_000_000, 2, math.inf, "range"), (1_000_000, 2, 2.0e7, "range"),
+])
+def test_wheel_distance_refusals_counted(time_usec: int, count: int, first: float, reason: str) -> None:
+    d = Decoders()
+    msg = wire(lambda m: m.wheel_distance_encode(time_usec, min(count, 255), [first] + [0.0] * 15))
+    assert d.wheel_distance(msg) is None
+    assert d.rejected == {f"WHEEL_DISTANCE:{reason}": 1}

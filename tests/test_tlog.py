@@ -66,3 +66,27 @@ def test_tlog_errors_name_the_problem(tmp_path: Path) -> None:
         load_tlog(junk)
     with pytest.raises(DataError, match="--imu-message: 'IMU9'"):
         load_tlog(write_tlog(tmp_path / "ok.tlog", d), imu_message="IMU9")
+
+
+def test_wheel_distance_and_the_wheel_positions_are_read_from_the_tlog(tmp_path: Path) -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as apm
+
+    from taco_mav.mavlink.tlog import TlogWriter
+    from tests.sim_helpers import BOOT, UTC
+
+    d = circle_drive(30.0, rate_hz=10.0, radius_m=150.0, speed_mps=8.0)
+    path = write_tlog(tmp_path / "wheels.tlog", d)
+    mav = apm.MAVLink(None, srcSystem=1, srcComponent=1)
+    log = TlogWriter(path)  # appended after the drive: the reader orders by time
+    for k in (3, 1, 2, 2):  # out of order and one repeated, as a link may deliver them
+        dist = [8.0 * 0.1 * k, 8.0 * 0.1 * k] + [0.0] * 14
+        log.write(mav.wheel_distance_encode(int((BOOT + 0.1 * k) * 1e6), 2, dist).pack(mav), UTC + 0.1 * k)
+    for name, value in (("WENC_POS_Y", 0.2), ("WENC2_POS_Y", -0.2)):
+        log.write(mav.param_value_encode(name.encode(), value, 9, 900, 1).pack(mav), UTC)
+    log.close()
+    drive = load_tlog(path)
+    assert drive.wheels is not None
+    assert np.allclose(drive.wheels.t, BOOT + np.array([0.1, 0.2, 0.3]))
+    assert np.allclose(drive.wheels.distances[:, 0], [0.8, 1.6, 2.4])
+    assert drive.wheels.pos_y_m == pytest.approx((0.2, -0.2))
+    assert load_tlog(write_tlog(tmp_path / "none.tlog", d)).wheels is None

@@ -32,10 +32,11 @@ from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.params import (ErrorModelParams, GateParams, ImuParams, LatencyParams, SmootherParams, TriggerParams,
                                   UkfParams)
 from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.wheel_params import WheelParams
 
 __all__ = ["LOCAL_PROFILE_DIR", "MATCHERS", "PROFILE_DIR", "CameraConfig", "ClassicalMatcherConfig",
            "EmulatorConfig", "ErrorModelParams", "Estimator", "Fg2Config", "GateParams", "GnssParams", "ImuParams",
            "LatencyParams", "LinkConfig", "MapConfig", "OutputConfig", "PlusParams", "Profile", "SmootherParams",
-           "TriggerParams", "UkfParams", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
+           "TriggerParams", "UkfParams", "WheelParams", "bounded", "frd_fwd_left", "load_profile", "localiser_params",
            "parse_overrides", "profile_from_dict", "profile_to_dict", "replace_in", "resolve_profile_path",
            "shipped_profiles"]

@@ -14,6 +14,7 @@ from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.params import (AnswerParams, ErrorModelParams, GateParams, ImuParams, LatencyParams, LocaliserParams,
                                   SmootherParams, TriggerParams, UkfParams)
 from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.wheel_params import WheelParams
 
 __all__ = ["MATCHERS", "Profile", "frd_fwd_left", "localiser_params", "profile_to_dict", "replace_in"]
 
@@ -46,6 +47,7 @@ core/plus/params.py, core/gnss/params.py: one definition, one default each); the
     fg2: Fg2Config = Fg2Config()
     link: LinkConfig = LinkConfig()
     output: OutputConfig = OutputConfig()
+    wheels: WheelParams = WheelParams()
 
 
 def replace_in(profile: Profile, dotted: str, value: Any) -> Profile:
@@ -75,10 +77,12 @@ def frd_fwd_left(position_frd_m: tuple[float, float, float]) -> tuple[float, flo
 
 def localiser_params(profile: Profile) -> LocaliserParams:
     """The values the core Localiser takes, from a profile (the core never sees the Profile itself): its estimator
-    sections as they are, the camera's lever arm, the map's georeferencing error, and taco+ only in that mode."""
+    sections as they are, the camera's lever arm, the map's georeferencing error, taco+ only in that mode, and the
+    wheels only when enabled."""
     return LocaliserParams(
         imu=profile.imu, error_model=profile.error_model, trigger=profile.trigger, gate=profile.gate, answer=profile.answer,
         ukf=profile.ukf, smoother=profile.smoother, latency=profile.latency,
         camera_lever_fwd_left_m=frd_fwd_left(profile.camera.position_frd_m),
         map_georef_sigma_m=profile.map.georef_sigma_m,
-        plus=profile.plus if profile.estimator is Estimator.TACO_PLUS else None, gnss=profile.gnss)
+        plus=profile.plus if profile.estimator is Estimator.TACO_PLUS else None, gnss=profile.gnss,
+        wheels=profile.wheels if profile.wheels.enabled else None)

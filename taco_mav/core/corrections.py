@@ -4,7 +4,7 @@ replays the frames after it. A correction is applied through the timeline and no
 applies every correction by construction.
 
 Within a frame they are applied after the frame's predict and compass update, in the order of their `stage`
-(a stop's speed update, the speed fed back into the preintegrator, a camera fix's position, its heading, the
+(a stop's or the wheels' speed update, the speed fed back into the preintegrator, a camera fix's position, its heading, the
 real GNSS): the order the estimator's maths was written in. World frame ENU metres, headings ENU radians.
 """
 
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from taco_mav.core.preintegration import Increment
 
 __all__ = ["Correction", "Frame", "GnssCorrection", "GnssMeasurement", "GnssUpdate", "HeadingFix", "PositionFix",
-           "SpeedFeedback", "ZeroSpeed"]
+           "SpeedFeedback", "WheelSpeed", "ZeroSpeed"]
 
 
 class Frame(Protocol):
@@ -74,6 +74,22 @@ class ZeroSpeed:
 
     def apply(self, ukf: PlanarUkf, tick: Frame) -> float:
         ukf.update_speed_error(-tick.inc.speed_end, self.sigma_mps)
+        return 0.0
+
+
+@dataclass(frozen=True)
+class WheelSpeed:
+    """The wheels' speed (taco+, plus/wheel_speed.py): the speed error at the frame end measured as dv (m/s, the
+    wheels' scaled speed less the preintegrated speed at the same time, in the frame's terms before its speed is
+    fed back), 1-sigma sigma_mps. Kept beside a stop's, before the feedback."""
+
+    dv: float
+    sigma_mps: float
+    stage: ClassVar[int] = 0
+    settles: ClassVar[bool] = False
+
+    def apply(self, ukf: PlanarUkf, tick: Frame) -> float:
+        ukf.update_speed_error(self.dv, self.sigma_mps)
         return 0.0
 
 

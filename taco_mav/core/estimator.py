@@ -21,6 +21,7 @@ from taco_mav.core.frames import FixOutcome, GnssMeasurement, Tick
 from taco_mav.core.queries import Answering
 from taco_mav.core.types import Estimate, GnssFix, GnssOutcome, ImuSample, MatchResult
 from taco_mav.core.ukf import PlanarUkf
+from taco_mav.core.wheel_odometry import WheelMotion
 
 __all__ = ["Aids", "Estimator", "FilterModel", "FixPolicy", "GnssPolicy", "Plan", "Report", "Trigger"]
 
@@ -97,6 +98,12 @@ class Aids(Protocol):
 
     def set_drive_command(self, t: float, driving: bool) -> None:
         """Whether the autopilot drives at time t."""
+
+    def add_wheel_speed(self, m: WheelMotion) -> str:
+        """The wheels' speed as a speed measurement ("used", or why not; "off" without wheels)."""
+
+    def wheels_refused(self) -> str | None:
+        """Why the wheel source is refused now, None while it is in use or absent."""
 
     def answer_missing(self, out: FixOutcome) -> None:
         """An answer that answers no query in flight or holds nothing (`out`)."""

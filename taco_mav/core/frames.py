@@ -35,6 +35,7 @@ class Tick:
     dv_fed: float = 0.0  # speed moved into the preintegrator after this frame, m/s
     track_unit: tuple[float, float] | None = None  # taco+: integral of the unit heading vector to this frame, s
     scale_track: tuple[float, float] | None = None  # taco+: displacement on the camera's speed to this frame, ENU m
+    wheel_track: tuple[float, float] | None = None  # taco+: displacement on the wheels' raw speed to here, ENU m
 
     def add(self, c: Correction) -> None:
         """Keep correction `c` on this frame, in stage order (after those of its stage already kept)."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from taco_mav.core.fields import bounded
 from taco_mav.core.gnss.params import GnssParams
 from taco_mav.core.plus.params import PlusParams
+from taco_mav.core.wheel_params import WheelParams
 
 __all__ = ["AnswerParams", "ErrorModelParams", "GateParams", "ImuParams", "LatencyParams", "LocaliserParams", "SmootherParams",
            "TriggerParams", "UkfParams"]
@@ -191,3 +192,5 @@ class LocaliserParams:
     plus: PlusParams | None = None
     # real GNSS while it is honest, and the spoofing/jamming guard (issue 14)
     gnss: GnssParams = GnssParams()
+    # the wheel encoders (profile wheels: when enabled; taco+ fuses their speed); None: no wheels
+    wheels: WheelParams | None = None

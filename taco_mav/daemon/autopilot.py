@@ -14,6 +14,7 @@ from taco_mav.daemon.imu_source import ATTITUDE_REQUESTED, IMU_REQUESTED
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.scheduler import Periodic
 from taco_mav.mavlink.connection import Link
+from taco_mav.mavlink.decoders import WHEEL_POS_PARAMS
 from taco_mav.mavlink.mavconst import (
     MAV_AUTOPILOT_INVALID,
     MAV_AUTOPILOT_PX4,
@@ -22,6 +23,7 @@ from taco_mav.mavlink.mavconst import (
     SEV_ERROR,
     SEV_WARNING,
 )
+from taco_mav.mavlink.param_read import ParamRead
 from taco_mav.mavlink.requests import GNSS_RATES, ParamCheck, StreamRequester
 from taco_mav.mavlink.stream_watch import StreamWatch
 from taco_mav.mavlink.timesync import ClockMap
@@ -39,7 +41,6 @@ WAKE_S = 0.02
 
 __all__ = ["AutopilotLink"]
 
-
 class AutopilotLink:
     """profile: its `link` and `output` sections; clockmap: the autopilot clock, fed here; wants_pose(): whether
     the simulator's true pose is needed (a camera that renders from it, a matcher that answers from it);
@@ -56,6 +57,7 @@ class AutopilotLink:
         self.requester: StreamRequester | None = None  # made when the autopilot is adopted (`_request_streams`)
         self.streamwatch: StreamWatch | None = None  # the estimator's inputs arriving at their granted rate: made then
         self.params_check: ParamCheck | None = None  # made when the session opens (link.check_params)
+        self.wheel_params: ParamRead | None = None  # WENC_POS_Y, WENC2_POS_Y (wheels.pos_y_from_autopilot): then
         self.t_heartbeat = Periodic(p.link.heartbeat_hz, 0.0)
         self.t_timesync = Periodic(p.link.timesync_hz, 0.0) if p.link.timesync_hz > 0 else None
         self.awaiting_until = -math.inf  # companion s until which our TIMESYNC request's answer is awaited
@@ -70,6 +72,8 @@ class AutopilotLink:
         self.link = link
         self.params_check = ParamCheck(link.send, link.mav, p.output.gps_id, antenna_frd_m=p.output.antenna_frd_m) \
             if p.link.check_params and "gps_input" in p.output.messages else None
+        self.wheel_params = ParamRead(link.send, link.mav, WHEEL_POS_PARAMS) \
+            if p.wheels.enabled and p.wheels.pos_y_from_autopilot else None
         self.t_heartbeat.restart(now)
         if self.t_timesync is not None:
             self.t_timesync.restart(now)
@@ -79,6 +83,14 @@ class AutopilotLink:
         or 0 while our TIMESYNC request's answer is awaited (its handling time is the measurement: read in the
         next batch, the offset read half the wait late, 47 ms at 0.1 s)."""
         return 0.0 if now < self.awaiting_until else LOOP_PERIOD_S
+
+    def wheel_pos_y(self) -> tuple[float, float] | None:
+        """The wheels' lateral positions the autopilot reports (WENC_POS_Y, WENC2_POS_Y: body FRD y, metres), None
+        until both were read."""
+        wp = self.wheel_params
+        if wp is None or not wp.complete:
+            return None
+        return wp.values[WHEEL_POS_PARAMS[0]], wp.values[WHEEL_POS_PARAMS[1]]
 
     @property
     def next_due(self) -> float:
@@ -127,6 +139,8 @@ class AutopilotLink:
                  "GLOBAL_POSITION_INT": 2.0}  # the autopilot's own position: where a restarted daemon starts
         if self.wants_pose():
             rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
+        if p.wheels.enabled:
+            rates["WHEEL_DISTANCE"] = p.wheels.rate_hz
         rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         assert self.link is not None
         self.requester = StreamRequester(self.link.send, self.link.mav, rates)
@@ -149,6 +163,8 @@ class AutopilotLink:
             self.requester.on_message(msg, self.link.target_system, self.link.target_component)
 
     def _on_param_value(self, msg: Any, received: float) -> None:
+        if self.wheel_params is not None:
+            self.wheel_params.on_message(msg)
         if self.params_check is None:
             return
         warning = self.params_check.on_message(msg)
@@ -174,6 +190,8 @@ class AutopilotLink:
             self._watch_streams(now)
         if self.params_check is not None:
             self.params_check.tick(now, link.target_system, link.target_component)
+        if self.wheel_params is not None:
+            self.wheel_params.tick(now, link.target_system, link.target_component)
 
     def _watch_streams(self, now: float) -> None:
         """Ask again for an estimator input that stopped coming at its granted rate (`StreamWatch`)."""

@@ -96,7 +96,7 @@ class Daemon:
                                        link_timeout_s=options.link_timeout_s, wants_pose=self._wants_pose)
         self.inputs = Inputs(profile=profile, state=self.state, stats=self.stats, decoders=self.decoders,
                              clockmap=self.clockmap, fixes=self.fixes, reporter=self.reporter, clock=clock,
-                             truth=self.truth)
+                             truth=self.truth, wheel_pos_y=self.autopilot.wheel_pos_y)
         self.origins = OriginHandler(profile=profile, state=self.state, decoders=self.decoders, fixes=self.fixes,
                                      reporter=self.reporter, clock=clock)
         self.outputs = Outputs(profile=profile, state=self.state, stats=self.stats, clockmap=self.clockmap,

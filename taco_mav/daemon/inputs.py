@@ -1,6 +1,7 @@
 """The daemon's handler of what the vehicle senses: IMU samples (checked against the autopilot's timeline for
-reboots, gaps and outliers) into the Localiser, attitude, the throttle output (whether the autopilot drives),
-and a simulator's true pose for the fix pipeline's camera and the true-pose track. It anchors the Localiser at
+reboots, gaps and outliers) into the Localiser, attitude, the throttle output (whether the autopilot drives), the
+wheel encoders (wheels.py, when the profile has them), and a simulator's true pose for the fix pipeline's camera
+and the true-pose track. It anchors the Localiser at
 the first IMU sample after the origin, and again after a reboot or a gap."""
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from taco_mav.daemon.options import DaemonStats
 from taco_mav.daemon.reporter import Reporter
 from taco_mav.daemon.state import LiveState
 from taco_mav.daemon.true_pose import TruePoseTrack
+from taco_mav.daemon.wheels import WheelInput
 from taco_mav.mavlink.decoders import IMU_MESSAGES, POSE_MESSAGES, Decoders
 from taco_mav.mavlink.mavconst import SEV_WARNING
 from taco_mav.mavlink.timesync import ClockMap
@@ -31,23 +33,28 @@ __all__ = ["Inputs"]
 class Inputs:
     """state: shared with the other handlers (this one writes attitude, last_imu and the Localiser);
     clock: companion monotonic seconds; decoders: field checks and rejection counters; fixes: its camera takes
-    the simulator's true pose; truth: the true-pose track of a matcher that answers from it (None: none does)."""
+    the simulator's true pose; truth: the true-pose track of a matcher that answers from it (None: none does);
+    wheel_pos_y: the wheels' lateral positions as the autopilot reports them (None until read)."""
 
     def __init__(self, *, profile: Profile, state: LiveState, stats: DaemonStats, decoders: Decoders,
                  clockmap: ClockMap, fixes: FixPipeline, reporter: Reporter, clock: Callable[[], float],
-                 truth: TruePoseTrack | None) -> None:
+                 truth: TruePoseTrack | None,
+                 wheel_pos_y: Callable[[], tuple[float, float] | None] = lambda: None) -> None:
         self.state, self.stats, self.decoders = state, stats, decoders
         self.clockmap, self.fixes, self.reporter, self.clock = clockmap, fixes, reporter, clock
         self.truth = truth
         self.sources = InputSources(profile.link.imu_message)  # IMU and attitude streams: first valid, fallback
         self.timeline = ImuTimeline(profile.link.reboot_backstep_s, profile.imu.max_dt_s)
         self.drive = DriveCommand()  # armed / driving, from the autopilot's HEARTBEAT and VFR_HUD
+        self.wheels = WheelInput(profile=profile, state=state, decoders=decoders, reporter=reporter,
+                                 pos_y=wheel_pos_y)
 
     def handlers(self) -> dict[str, Callable[[Any, float], None]]:
         out: dict[str, Callable[[Any, float], None]] = {k: self.on_imu for k in IMU_MESSAGES}
         out.update({k: self.on_attitude for k in ATTITUDE_MESSAGES})
         out.update({k: self.on_sim_pose for k in POSE_MESSAGES})
         out["VFR_HUD"] = self.on_vfr_hud
+        out.update(self.wheels.handlers())
         return out
 
     def on_heartbeat(self, msg: Any) -> None:
@@ -77,6 +84,7 @@ class Inputs:
         self.clockmap.on_autopilot_time(r.t)
         st.last_imu = r
         st.last_imu_clock = self.clock()
+        self.wheels.watch(st.last_imu_clock)
         if st.attitude is None:
             self.stats.dropped["imu_before_attitude"] += 1
             return

@@ -71,13 +71,25 @@ class GroundTruth:
         return x, y, float(np.arctan2(np.sin(th), np.cos(th)))
 
 
+@dataclass(frozen=True)
+class WheelLog:
+    """Wheel-encoder samples as the autopilot sent them (WHEEL_DISTANCE): t (N,) autopilot s, increasing;
+    distances (N, W) cumulative metres per wheel; pos_y_m: the wheels' lateral positions the autopilot reported
+    (WENC_POS_Y, WENC2_POS_Y: body FRD metres) when the recording holds them, else None."""
+
+    t: np.ndarray
+    distances: np.ndarray
+    pos_y_m: tuple[float, float] | None = None
+
+
 class Drive(Protocol):
     """One drive from any source.
 
     name: e.g. "2011_09_30_drive_0018" (sequence: odometry id like "05", or None). utm_epsg: EPSG code of the
     UTM zone; origin_utm: (2,) UTM easting/northing of the start fix, metres. frame_times: (F,) s, empty when
     the drive has no images. camera: the camera's flat-ground model, or None without images. mosaic: path of a
-    satellite GeoTIFF covering the drive (synthetic worlds), or None.
+    satellite GeoTIFF covering the drive (synthetic worlds), or None. wheels: the wheel encoders' samples (a
+    recording's WHEEL_DISTANCE), or None.
     """
 
     name: str
@@ -90,6 +102,7 @@ class Drive(Protocol):
     frame_times: np.ndarray
     camera: GroundCamera | None
     mosaic: Path | None
+    wheels: WheelLog | None
 
     def frame(self, index: int) -> np.ndarray:
         """Camera frame `index` as uint8 RGB (H, W, 3); raises DataError when the drive has no images."""

@@ -29,7 +29,7 @@ import numpy as np
 
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
-from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix
+from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix, WheelLog
 from taco_mav.datasets.kitti_io import (
     OXTS,
     OXTS_FIELDS,
@@ -124,6 +124,7 @@ class KittiDrive:
     t_unix: np.ndarray
     oxts: np.ndarray
     _image_paths: tuple[Path, ...] = field(default=(), repr=False)
+    wheels: WheelLog | None = None  # KITTI's car logs no wheel encoders
 
     def __len__(self) -> int:
         return len(self.imu)

@@ -17,6 +17,8 @@ dead-reckoning drift (`taco-mav drift --tlog`).
   sends another clock), the fix takes that receive time instead. Receive times would not do for every fix: they
   wander with the link and the companion's load (in the in-process simulator, 0.05 s RMS: 0.4 m along the track
   at 8 m/s), and trail the fix by the stream's phase.
+- Wheels: WHEEL_DISTANCE as decoded by the daemon (cumulative metres per wheel, autopilot seconds), with the
+  autopilot's WENC_POS_Y / WENC2_POS_Y where a PARAM_VALUE of both was recorded; None without any.
 """
 
 from __future__ import annotations
@@ -35,10 +37,11 @@ from pymavlink import mavutil  # noqa: E402
 from taco_mav.camera.geometry import GroundCamera  # noqa: E402
 from taco_mav.core.preintegration import enu_heading  # noqa: E402
 from taco_mav.daemon.gnss import MAX_TIME_SKEW_S  # noqa: E402
-from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix  # noqa: E402
+from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix, WheelLog  # noqa: E402
 from taco_mav.errors import DataError  # noqa: E402
 from taco_mav.geo import UtmProjector, utm_epsg_for, wrap_angle  # noqa: E402
-from taco_mav.mavlink.decoders import IMU_MESSAGES, AttitudeReading, Decoders  # noqa: E402
+from taco_mav.mavlink.decoders import (IMU_MESSAGES, WHEEL_MESSAGE, WHEEL_POS_PARAMS, AttitudeReading,  # noqa: E402
+                                       Decoders)
 
 __all__ = ["TlogDrive", "load_tlog"]
 
@@ -64,6 +67,7 @@ class TlogDrive:
     camera: GroundCamera | None = None
     mosaic: Path | None = None
     frame_paths: tuple[Path, ...] = ()
+    wheels: WheelLog | None = None
 
     def frame(self, index: int) -> np.ndarray:
         """Frame `index` as RGB uint8 (H, W, 3); DataError naming the file when it cannot be read."""
@@ -92,6 +96,8 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     ours: set[tuple[int, int]] = set()  # (lat, lon) degE7 of every GPS_INPUT we sent
     raw: dict[str, list[tuple[int, int]]] = {"GPS_RAW_INT": [], "GPS2_RAW": []}
     offsets: list[float] = []
+    wheels: list[tuple[float, tuple[float, ...]]] = []
+    wheel_params: dict[str, float] = {}
     try:
         conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
     except (OSError, ValueError) as exc:
@@ -118,6 +124,14 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
                     raw[kind].append((int(msg.lat), int(msg.lon)))
             elif kind == "GPS_INPUT":
                 ours.add((int(msg.lat), int(msg.lon)))
+            elif kind == WHEEL_MESSAGE:
+                w = dec.wheel_distance(msg)
+                if w is not None:
+                    wheels.append((w.t, w.distances))
+            elif kind == "PARAM_VALUE":
+                pid = str(msg.param_id).rstrip("\x00")
+                if pid in WHEEL_POS_PARAMS and math.isfinite(float(msg.param_value)):
+                    wheel_params[pid] = float(msg.param_value)
     finally:
         conn.close()
     kind = imu_message or next((k for k in IMU_MESSAGES if imu.get(k)), None)
@@ -163,7 +177,20 @@ def load_tlog(path: Path, imu_message: str | None = None, course_min_speed_mps: 
     return TlogDrive(name=path.stem, imu=ImuStream(t, accel, gyro, rpy), truth=GroundTruth(tg, xy, heading),
                      start=start, utm_epsg=proj.epsg, origin_utm=np.array([e0, n0]),
                      convergence_rad=conv if math.isfinite(conv) else 0.0, rejected=dict(dec.rejected),
-                     receiver=receiver, t0_unix=float(t[0] - offset))
+                     receiver=receiver, t0_unix=float(t[0] - offset), wheels=_wheel_log(wheels, wheel_params))
+
+
+def _wheel_log(samples: list[tuple[float, tuple[float, ...]]], params: dict[str, float]) -> WheelLog | None:
+    """The recorded WHEEL_DISTANCE samples in time order (a repeated time, or a wheel count other than the
+    first's, dropped), or None without two."""
+    samples = sorted(samples, key=lambda s: s[0])
+    if len(samples) < 2:
+        return None
+    n = len(samples[0][1])
+    kept = [s for k, s in enumerate(samples) if len(s[1]) == n and (k == 0 or s[0] > samples[k - 1][0])]
+    pos_y = (params[WHEEL_POS_PARAMS[0]], params[WHEEL_POS_PARAMS[1]]) if set(WHEEL_POS_PARAMS) <= set(params) \
+        else None
+    return WheelLog(np.array([s[0] for s in kept]), np.array([s[1] for s in kept], dtype=float), pos_y)
 
 
 def _fix_times(fixes: list[tuple[float, float, float, float, float, float | None, float]], offset: float

@@ -41,6 +41,7 @@ from taco_mav.cvgl.service import profile_service
 from taco_mav.datasets.base import Drive
 from taco_mav.errors import DataError, MatcherError
 from taco_mav.evaluation.camera_motion import OfflineMotion
+from taco_mav.evaluation.wheel_replay import WheelReplay
 from taco_mav.progress import progress_bar
 
 log = logging.getLogger(__name__)
@@ -214,8 +215,13 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
             motion = OfflineMotion(drive, camera, profile.classical.ego_mask_rows)
         except ValueError as e:  # the camera sees too little ground ahead: as the daemon, speed is the IMU's
             log.warning("drive %s: camera speed off (plus.camera_speed): %s", drive.name, e)
+    # taco+'s wheel encoders, as the daemon feeds them (daemon/wheels.py), on a recording that has them
+    wheels = WheelReplay(drive.wheels, profile.wheels) \
+        if profile.wheels.enabled and drive.wheels is not None and loc.aids is not None else None
     for i, sample in enumerate(progress_bar(imu.samples(), total=len(imu), desc=drive.name, enabled=progress)):
         loc.add_imu(sample)
+        if wheels is not None:
+            wheels.tick(loc, sample.t)
         if len(loc.record.track) > len(reported):  # a frame closed: what the daemon would report now
             reported.append(_cov3(loc.estimate().cov_xy))
         dead.add(sample)
@@ -252,5 +258,6 @@ def run_drive(drive: Drive, profile: Profile, *, latency_s: float = 0.0, progres
                "convergence_rad": convergence if math.isfinite(convergence) else 0.0,
                "lock_events": loc.record.lock_events,
                "query_frames": dict(frames.counts) if frames is not None else {},
-               "camera_motion": dict(motion.counts) if motion is not None else {}},
+               "camera_motion": dict(motion.counts) if motion is not None else {},
+               **({"wheels": dict(wheels.counts)} if wheels is not None else {})},
     )

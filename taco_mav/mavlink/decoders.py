@@ -11,6 +11,8 @@ Frames and units (DESIGN.md):
 - GPS_GLOBAL_ORIGIN / HOME_POSITION: latitude/longitude degE7, altitude mm AMSL.
 - SIMSTATE (ArduPilot SITL) / HIL_STATE_QUATERNION (PX4 SIH, when asked for): lat/lng (lon) degE7, yaw radians
   NED or the body-to-NED attitude quaternion [w, x, y, z] (the simulator's true pose).
+- WHEEL_DISTANCE (id 9000): time_usec (ArduPilot: 1000 x its millis() at sending), count wheels, distance[16]
+  cumulative metres per wheel (the first `count` used; forward positive).
 All times come out as autopilot seconds.
 """
 
@@ -32,6 +34,11 @@ GNSS_MESSAGES = {"GPS_RAW_INT": 1, "GPS2_RAW": 2}  # message -> GPS instance it 
 ORIGIN_MESSAGES = ("GPS_GLOBAL_ORIGIN", "HOME_POSITION")
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"  # the autopilot's own estimate (EKF): where a restarted daemon starts
 POSE_MESSAGES = ("SIMSTATE", "HIL_STATE_QUATERNION")  # a simulator's true pose: ArduPilot SITL's, PX4 SIH's
+WHEEL_MESSAGE = "WHEEL_DISTANCE"  # the wheel encoders' cumulative distances
+# ArduPilot's parameters of the first two wheels' lateral positions (AP_WheelEncoder: body FRD y, metres)
+WHEEL_POS_PARAMS = ("WENC_POS_Y", "WENC2_POS_Y")
+MAX_WHEELS = 16  # WHEEL_DISTANCE.distance's length
+MAX_WHEEL_DISTANCE_M = 1.0e7  # |cumulative distance| beyond this (10 000 km) is garbage
 UNKNOWN_U16 = 65535
 MAX_ALT_M = 20_000.0  # |altitude| beyond this (m AMSL) is not a ground vehicle's
 MAX_SPEED_MPS = 150.0  # ground speed beyond this is not a ground vehicle's
@@ -132,6 +139,14 @@ class AutopilotPosition:
 
 
 STILL_MPS = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class WheelDistanceReading:
+    """t: autopilot s (time_usec); distances: cumulative metres per wheel, forward positive (count of them)."""
+
+    t: float
+    distances: tuple[float, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -309,3 +324,21 @@ class Decoders:
             self.reject(kind, "range")
             return None
         return SimPose(lat, lon, yaw)
+
+    def wheel_distance(self, msg: Any) -> WheelDistanceReading | None:
+        """WHEEL_DISTANCE -> the first `count` wheels' cumulative distances, or None (counted) without a time, a
+        wheel, or with a non-finite or absurd distance."""
+        kind = msg.get_type()
+        count = int(msg.count)
+        if not 1 <= count <= MAX_WHEELS:
+            self.reject(kind, "count")
+            return None
+        t = int(msg.time_usec) * 1e-6
+        if t <= 0.0:
+            self.reject(kind, "no_time")
+            return None
+        d = tuple(float(x) for x in list(msg.distance)[:count])
+        if len(d) != count or not _finite(*d) or max(abs(x) for x in d) > MAX_WHEEL_DISTANCE_M:
+            self.reject(kind, "range")
+            return None
+        return WheelDistanceReading(t, d)

@@ -1,6 +1,6 @@
 """taco+'s aiding of the filter beyond the paper (the `Aids` of estimator.py): stops (zero_velocity.py), the
-camera's speed (camera_speed.py) and its scale error (speed_scale.py), the autopilot's drive command, the IMU-only
-safety guard (safety_guard.py), the lock's events, and the error-state feedback that moves the speed-error
+camera's speed (camera_speed.py) and its scale error (speed_scale.py), the wheels' speed (wheel_speed.py, when the
+profile has wheels), the autopilot's drive command, the IMU-only safety guard (safety_guard.py), the lock's events, and the error-state feedback that moves the speed-error
 estimate into the preintegrator after every frame (kept on the frame as a `SpeedFeedback` correction, so a
 replay takes it out of the state again).
 
@@ -22,9 +22,11 @@ from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.plus.progress import Progress
 from taco_mav.core.plus.safety_guard import SafetyGuard
 from taco_mav.core.plus.speed_scale import ScaleConsider
+from taco_mav.core.plus.wheel_speed import WheelAiding
 from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.timeline import Timeline
 from taco_mav.core.types import GnssFix, GnssOutcome, ImuSample
+from taco_mav.core.wheel_odometry import WheelMotion
 
 __all__ = ["PlusAids"]
 
@@ -40,6 +42,7 @@ class PlusAids:
         self.lock, self.progress, self.guard, self.zero, self.scale, self.answers = (
             lock, progress, guard, zero, scale, answers)
         self.camera = CameraSpeed(timeline, gnss, q, zero, guard, self.feedback)
+        self.wheels = WheelAiding(timeline, params.wheels, zero) if params.wheels is not None else None
         self.lock_events = lock.events
         self._track_unit = (0.0, 0.0)  # integral of the compass's unit heading vector over time, s (ENU)
 
@@ -53,6 +56,8 @@ class PlusAids:
         self.zero.add_imu(sample, pre.accel_fwd)
         if self.q.guard:
             self.guard.add_imu(sample.t, pre.accel_fwd, pre.theta)
+        if self.wheels is not None:
+            self.wheels.after_imu(sample, pre.speed)
 
     def set_drive_command(self, t: float, driving: bool) -> None:
         self.zero.set_drive_command(t, driving)
@@ -65,6 +70,10 @@ class PlusAids:
         self.scale.advance(tick, mid)
         if self.zero.decide():
             tick.add(ZeroSpeed(self.q.zupt_sigma_mps))
+        if self.wheels is not None:
+            wheel = self.wheels.open_frame(tick, mid)
+            if wheel is not None:
+                tick.add(wheel)
 
     def close_frame(self, tick: Tick) -> None:
         self.progress.odo += tick.inc.distance
@@ -86,6 +95,8 @@ class PlusAids:
         if applied:
             pre.speed = new
             ukf.x[3] -= applied
+            if self.wheels is not None:
+                self.wheels.fed_back(applied)
             if not any(isinstance(c, SpeedFeedback) for c in tick.corrections):
                 tick.add(SpeedFeedback())
             tick.dv_fed += applied
@@ -98,6 +109,15 @@ class PlusAids:
         if used == "used":
             self.scale.camera_used(t1)
         return used
+
+    def add_wheel_speed(self, m: WheelMotion) -> str:
+        """The wheels' speed between two WHEEL_DISTANCE samples (wheel_speed.py): "used", or why not; "off" when
+        the profile has no wheels."""
+        return "off" if self.wheels is None else self.wheels.add(m)
+
+    def wheels_refused(self) -> str | None:
+        """Why the wheel source is refused now ("slip", "stuck", "disagrees"), None while it is in use or absent."""
+        return None if self.wheels is None else self.wheels.refused
 
     def answer_missing(self, out: FixOutcome) -> None:
         """An answer that answers no query in flight, or holds nothing (`out`): the latter counts towards loss of

@@ -1,6 +1,7 @@
 """taco+ as the Localiser's estimator (`make_plus`): the paper's heuristics replaced where they lose lock or
 overwrite the state, as parts sharing the lock state machine (lock.py), held answers (answer_hold.py), the safety
-guard (safety_guard.py), stops (zero_velocity.py), the camera speed's scale error (speed_scale.py), the fix noise
+guard (safety_guard.py), stops (zero_velocity.py), the camera speed's scale error (speed_scale.py), the wheels'
+speed and its learnt scale (wheel_speed.py, wheel_scale.py: only with a profile's wheels), the fix noise
 and reported-accuracy factors (noise.py) and the running tallies (progress.py): the filter (filter.py), the
 trigger (trigger.py), what an answer does (fix_policy.py), what a real GNSS reading does (gnss.py), the reported
 accuracy (report.py) and the aiding (aiding.py). Paper mode (`paper.make_paper`) is untouched.
@@ -56,11 +57,11 @@ def make_plus(timeline: Timeline, desk: QueryDesk, gnss: GnssFusion, params: Loc
     return Estimator(
         filter=PlusFilter(params, q),
         trigger=PlusTrigger(timeline, desk, gnss, params, q, lock=lock, progress=progress, answers=answers,
-                            zero=zero),
+                            zero=zero, wheels=aids.wheels),
         fixes=PlusFixPolicy(timeline, desk, params, q, lock=lock, progress=progress, answers=answers,
                             fix_scale=fix_scale, report_factor=report_factor, scale=scale, zero=zero, guard=guard,
-                            feedback=aids.feedback),
+                            feedback=aids.feedback, wheels=aids.wheels),
         gnss=KalmanGnss(timeline, q, zero, guard, aids.feedback),
         report=PlusReport(timeline, gnss, q, lock=lock, guard=guard, report_factor=report_factor, scale=scale,
-                          answers=answers, fix_scale=fix_scale, zero=zero),
+                          answers=answers, fix_scale=fix_scale, zero=zero, wheels=aids.wheels),
         aids=aids)

@@ -1,8 +1,8 @@
 """What an answer does in taco+: consensus over the crops' candidates (search.py), the answer check while lock is
 lost (answer_check.py), a weak answer deferred while the filter can wait, the chi-square innovation gate against
 the track (tighter for an uncorroborated answer), a jump held until a second answer confirms it (answer_hold.py),
-the fix noise learnt from earlier fixes (noise.py), the camera speed's scale error entering the filter where the
-fix can take it out (speed_scale.py), and the answer's rotation as a measurement of the true heading. Every
+the fix noise learnt from earlier fixes (noise.py), the camera speed's and the wheels' scale errors entering the
+filter where the fix can take it out (speed_scale.py, wheel_scale.py; the fix also teaches the wheels' scale), and the answer's rotation as a measurement of the true heading. Every
 answered trigger without an accepted fix counts towards loss of lock (lock.py).
 
 World frame ENU metres, headings ENU radians, times autopilot seconds.
@@ -27,6 +27,7 @@ from taco_mav.core.plus.progress import Progress
 from taco_mav.core.plus.safety_guard import SafetyGuard
 from taco_mav.core.plus.search import consensus, defer_answer
 from taco_mav.core.plus.speed_scale import ScaleConsider
+from taco_mav.core.plus.wheel_speed import WheelAiding
 from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.queries import Answering, QueryDesk
 from taco_mav.core.search import fix_position
@@ -44,11 +45,11 @@ class PlusFixPolicy:
     def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams, q: PlusParams, *,
                  lock: LockMonitor, progress: Progress, answers: AnswerHold, fix_scale: FixNoiseScale,
                  report_factor: VarianceFactor, scale: ScaleConsider, zero: ZeroVelocity, guard: SafetyGuard,
-                 feedback: Callable[[Tick], None]) -> None:
+                 feedback: Callable[[Tick], None], wheels: WheelAiding | None = None) -> None:
         self.timeline, self.desk, self.p, self.q = timeline, desk, params, q
         self.lock, self.progress, self.answers, self.fix_scale = lock, progress, answers, fix_scale
         self.report_factor, self.scale, self.zero, self.guard = report_factor, scale, zero, guard
-        self._feedback = feedback
+        self._feedback, self.wheels = feedback, wheels
 
     def judge(self, answer: Answering, results: Sequence[MatchResult | None]) -> FixOutcome:
         """Consensus over the candidates, the chi-square innovation gate, held answers and the lock state machine
@@ -96,6 +97,10 @@ class PlusFixPolicy:
         scale_cov = self.scale.covariance_at(tick) if qp.speed_scale_consider else None
         if scale_cov is not None:  # the camera speed's scale error since the last pin (speed_scale.py)
             Pz = Pz + scale_cov
+        Pz_other = Pz  # all but the wheels' scale error: the noise of the scale's measurement below
+        wheel_cov = self.wheels.scale.covariance_at(tick) if self.wheels is not None else None
+        if wheel_cov is not None:  # the wheels' scale error since the last fix (wheel_scale.py), likewise
+            Pz = Pz + wheel_cov
         innov = z - pred
         jump = float(np.linalg.norm(innov))
         nis = float(innov @ np.linalg.solve(Pz + fix_covariance(float(tick.x[2]), s_f, s_l), innov))
@@ -119,12 +124,17 @@ class PlusFixPolicy:
         if scale_cov is not None:  # ... enters the filter where the fix can take it out
             tick.P = tick.P.copy()
             tick.P[:2, :2] += scale_cov
+        if wheel_cov is not None:
+            tick.P = tick.P.copy()
+            tick.P[:2, :2] += wheel_cov
         answers.held = []
         learn = state is LockState.LOCKED and held is None
         if qp.adaptive_fix_noise and learn:  # learn from this fix for the next ones
             self.fix_scale.update(innov, Pz, fix_covariance(float(tick.x[2]), s_f0, s_l0))
         # the answer's rotation measures the true heading at capture (plus.fix_yaw_sigma_rad; 0: gate only)
         heading = (q.heading + float(psi[k]), qp.fix_yaw_sigma_rad) if qp.fix_yaw_sigma_rad > 0.0 else None
+        if self.wheels is not None:  # what this fix says of the wheels' scale (wheel_scale.py)
+            self.wheels.scale.fix(tick, innov, Pz_other + fix_covariance(float(tick.x[2]), s_f, s_l))
         tl.fix(tick, z, s_f, s_l, heading)
         self.scale.pin(tick)
         pr = self.progress

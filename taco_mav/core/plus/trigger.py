@@ -1,6 +1,7 @@
 """taco+'s trigger (search.py): recover while lock is lost (a hexagonal grid of crops growing with the
 uncertainty), verify a held answer, confirm a relocalisation, hand over from a lost GNSS, the map trigger, then
-distance, covariance and time, each with the cross search sized by the uncertainty.
+distance, covariance and time (longer while the wheels give the speed), each with the cross search sized by the
+uncertainty.
 
 World frame ENU metres, times autopilot seconds.
 """
@@ -17,6 +18,7 @@ from taco_mav.core.plus.lock import LockMonitor, LockState
 from taco_mav.core.plus.params import PlusParams
 from taco_mav.core.plus.progress import Progress
 from taco_mav.core.plus.search import cross_arm, grid_rings, hex_offsets
+from taco_mav.core.plus.wheel_speed import WheelAiding
 from taco_mav.core.plus.zero_velocity import ZeroVelocity
 from taco_mav.core.queries import QueryDesk
 from taco_mav.core.search import cross_offsets
@@ -31,9 +33,9 @@ class PlusTrigger:
 
     def __init__(self, timeline: Timeline, desk: QueryDesk, gnss: GnssFusion, params: LocaliserParams,
                  q: PlusParams, *, lock: LockMonitor, progress: Progress, answers: AnswerHold,
-                 zero: ZeroVelocity) -> None:
+                 zero: ZeroVelocity, wheels: WheelAiding | None = None) -> None:
         self.timeline, self.desk, self.gnss, self.p, self.q = timeline, desk, gnss, params, q
-        self.lock, self.progress, self.answers, self.zero = lock, progress, answers, zero
+        self.lock, self.progress, self.answers, self.zero, self.wheels = lock, progress, answers, zero, wheels
         self._gnss_was_healthy = False  # the real GNSS was in use at the last trigger check
 
     def plan(self) -> Plan | None:
@@ -41,6 +43,9 @@ class PlusTrigger:
         from a lost GNSS, the map trigger, distance, covariance, time."""
         tl, q, pr = self.timeline, self.q, self.progress
         sig = horizontal_sigma(tl.ukf.P)
+        wheel_cov = self.wheels.scale.covariance() if self.wheels is not None else None
+        if wheel_cov is not None:  # the wheels' scale error since the last fix (wheel_scale.py)
+            sig = horizontal_sigma(tl.ukf.P[:2, :2] + wheel_cov)
         if self.lock.on_uncertainty(tl.t, sig):
             self.answers.inflate(sig)
             sig = horizontal_sigma(tl.ukf.P)
@@ -69,6 +74,8 @@ class PlusTrigger:
         # unless the autopilot confirms it does not drive
         stopped = self.zero.stopped_on_command()
         every = q.trigger_retry_s if q.trigger_retry_s > 0.0 and self.answers.last_answer_weak else q.trigger_time_s
+        if self.wheels is not None and self.wheels.in_use(tl.t):  # the speed is known: the covariance decides
+            every = max(every, self.wheels.w.trigger_time_s)
         if tl.t - self.desk.answered_t >= every and not (stopped and (self.zero.active or self.zero.still.stationary)):
             return self._planned("time", arm)
         return None

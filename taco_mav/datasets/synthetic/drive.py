@@ -19,7 +19,7 @@ import rasterio
 
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import CameraConfig
-from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix
+from taco_mav.datasets.base import GroundTruth, ImuStream, StartFix, WheelLog
 from taco_mav.datasets.kitti import KittiDrive, load_drive
 from taco_mav.datasets.synthetic.render import GroundRenderer
 from taco_mav.errors import DataError
@@ -64,6 +64,7 @@ class SyntheticDrive:
     kitti: KittiDrive
     truth_utm: np.ndarray
     _renderer: Any = field(default=None, repr=False)
+    wheels: WheelLog | None = None  # a world's drive has no wheel encoders
 
     def camera_pose(self, t: float) -> tuple[float, float, float]:
         """True camera pose at time t: (E, N) absolute UTM metres and heading on the UTM grid, ENU radians."""
