@@ -20,7 +20,10 @@ Pipeline per trigger (one ground frame, K heading-up crops):
    (`W_CALIBRATION`), that rises with the probability of a correct match (`psr_weight`).
 
 Output per crop (see `taco_mav.cvgl.base`): R = rotation by psi (CCW positive), t = vehicle (forward, left)
-metres from the crop centre in the crop frame, w in (0, 1]."""
+metres from the crop centre in the crop frame, w in (0, 1].
+
+docs/matchers.md describes the matcher and its settings; docs/results.md has the measurements behind its
+constants (the PSR -> w calibration per descriptor, the FFT's cost) with the commit and command of each."""
 
 from __future__ import annotations
 
@@ -47,31 +50,18 @@ __all__ = ["ClassicalMatcher", "W_CALIBRATION", "psr_weight"]
 
 _EPS = 1e-6
 
-# PSR -> w logistic: midpoint (w = 0.5) and scale, PSR units. Measured with single crops offset 0-30 m from the
-# truth plus crops of a different place >= 150 m away (correct = fix error < 3 m), default matcher settings:
-# - taco_mav.datasets.synthetic world (build_world seed 3, 1 km; poses along its drive; 220 offset + 80 chance
-#   crops): P(correct) 0.07 at PSR 4-5, 0.28 at 5.5-6, 0.40 at 6-6.5, 0.85-1.00 from 6.5 on; chance peaks median
-#   4.9, max 8.0; correct median 8.8; maximum-likelihood logistic midpoint 6.1, scale 0.52 (PSR AUC 0.976);
-# - the bench's textured mosaic (`taco_mav.bench.classical.confidence_samples`, seeds 1-4, 1600 + 400 crops):
-#   P(correct) 0.10 at 6-7, 0.59 at 7-8, 0.98 at 8-9; chance median 4.5; midpoint 7.4, scale 0.40 (AUC 0.9995).
-# 6.5 / 0.5 sits between the two fits (mean log-loss 0.19 and 0.037 against the best 0.18 and 0.021).
-# The profile's classical.psr_at_half_weight / psr_logistic_scale override W_CALIBRATION below when set.
+# PSR -> w logistic: midpoint (w = 0.5) and scale, PSR units; correct = fix error < 3 m. 6.5 / 0.5 lies between
+# the maximum-likelihood fits on a synthetic world's crops and on the bench's textured mosaic (docs/results.md,
+# "The classical matcher's PSR -> w calibration"). The profile's classical.psr_at_half_weight /
+# psr_logistic_scale override W_CALIBRATION below when set.
 PSR_AT_HALF_WEIGHT = 6.5
 PSR_LOGISTIC_SCALE = 0.5
 
-# (midpoint, scale) of the PSR -> w logistic per descriptor, used when the profile leaves them unset; measured
-# for issue 17 with tools/appearance_gap.py on worlds that are not those of the figures in docs/matchers.md:
-# flat world seed 5 (250 single crops, 50 per condition clean / map / fold / fold+occ / map+occ, the vehicle
-# 0-45 m from the crop centre, a third outside the 30 m search window) and 3d world seed 5 (80 crops, 0-15 m).
-# - lcn (kept, so that the old matcher stays the old matcher): flat seed 5 P(correct) 0.06 / 0.26 / 0.56 / 0.78
-#   / 0.93 / 1.00 at PSR < 5 / 5-6 / 6-6.5 / 6.5-7 / 7-8 / >= 8 (AUC 0.96; maximum-likelihood fit 6.0, 0.6).
-# - orientation: flat seed 5 P(correct) 0.06 / 0.22 / 0.44 / 0.40 / 0.71 / 0.94 (8-9) / 0.97 (9-10) / 1.00
-#   (AUC 0.97); 3d seed 5 0.00 at 5-6, 0.88-1.00 from 6 on (correct PSR median 8.4). Pooled maximum-likelihood
-#   fit 6.3, 0.78 (log-loss 0.219; 6.5 / 0.5: 0.239; 6.0 / 0.5: 0.256). Chance peaks (the bench mosaic's crops
-#   >= 150 m away, seed 6) have PSR median 4.9, 90th percentile 5.7: w median 0.04 at 6.5 / 0.5.
-# w cannot make the fix noise honest for correct matches: at w = 1 the paper's mapping (Sec. III-F) says 1.5 m
-# forward, 3 m lateral, several times their errors (RMS 0.17 / 0.44 m flat, 0.65 / 0.67 m 3d); docs/matchers.md
-# has the NIS this gives.
+# (midpoint, scale) of the PSR -> w logistic per descriptor, used when the profile leaves them unset. Both
+# descriptors take 6.5 / 0.5: for orientation it is within 0.02 in log-loss of the pooled maximum-likelihood fit
+# on worlds that are not those of the figures in docs/matchers.md (docs/results.md). w cannot make the fix noise
+# honest for correct matches: at w = 1 the paper's mapping (Sec. III-F) says 1.5 m forward, 3 m lateral, several
+# times their errors; docs/matchers.md has the NIS this gives.
 W_CALIBRATION: dict[str, tuple[float, float]] = {
     "lcn": (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE),
     "orientation": (PSR_AT_HALF_WEIGHT, PSR_LOGISTIC_SCALE),
@@ -91,9 +81,8 @@ def _spectra(planes: np.ndarray) -> np.ndarray:
     """The DFT of each float32 plane of (ny, nx) or (C, ny, nx), in OpenCV's packed layout for real input (CCS:
     the same shape and dtype, the spectrum's independent half), which `cv2.mulSpectrums` multiplies and
     `cv2.idft` inverts. OpenCV's FFT rather than scipy's: the daemon then never imports scipy.fft (with
-    scipy.special, which it pulls in, 8 MB of a companion's memory, issue 31) at about scipy's cost per call (three
-    300 x 360 planes: 1.7 ms forward against 2.0, 0.9 ms a correlation against 0.76); the correlations agree with
-    a float64 FFT's to float32 rounding (tests/test_classical.py)."""
+    scipy.special, which it pulls in, 8 MB of a companion's memory) at about scipy's cost per call
+    (docs/results.md); the correlations agree with a float64 FFT's to float32 rounding (tests/test_classical.py)."""
     if planes.ndim == 2:
         return cv2.dft(planes)
     return np.stack([cv2.dft(p) for p in planes])
@@ -313,8 +302,8 @@ class ClassicalMatcher:
             occ, _ = self._bev.project(hidden.astype(np.float32))
             view = self._base * (occ < 0.25).astype(np.float32)
         # one FFT size for the trigger (a crop of another size would re-plan it under the cached templates); each
-        # crop's spectra are computed when it is scored, not all at once (the companion bench's peak 250 -> 211 MB,
-        # issue 31: the matcher thread's allocator kept the five crops' high-water mark)
+        # crop's spectra are computed when it is scored, not all at once: the matcher thread's allocator keeps the
+        # high-water mark of what a trigger holds (docs/companion.md)
         sizes = {self._crop_px_of(c) for c in crops}
         if len(sizes) > 1:
             raise MatcherError(f"classical matcher: a trigger's crops must share one size at {self.m_per_px} m/px, "

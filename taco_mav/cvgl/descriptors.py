@@ -1,4 +1,4 @@
-"""Dense descriptors that the classical matcher correlates: grey-level LCN (the old one) and gradient orientation.
+"""Dense descriptors that the classical matcher correlates: grey-level LCN and gradient orientation (the default).
 
 Both take a float32 grey image (H, W) at the matcher's resolution and an optional float32 0/1 validity mask
 (H, W), and return channels (C, H, W) float32 that are zero where the mask is 0. The matcher correlates all

@@ -1,4 +1,4 @@
-"""Ground-plane motion between two camera frames (issue 19): speed from the camera as well as the IMU.
+"""Ground-plane motion between two camera frames: speed from the camera as well as the IMU.
 
 Both frames are projected to the same heading-up bird's-eye view (`BevProjector`, the IPM the classical matcher
 uses); the second is first rotated about the vehicle by the compass's heading change, so what is left between

@@ -77,7 +77,7 @@ def vertical_structure_mask(image: np.ndarray, camera: GroundCamera, opts: MaskO
 
     The gradient is classified band by band (`_gradient_bands`) into the two edge maps the rest needs, uint8
     (H, W) each: a frame's float32 gradients and the cone's coordinates are never held whole (a 1280x720 frame's
-    are 3.7 MB an array, about 25 MB at once, which set the daemon's peak memory, issue 31)."""
+    are 3.7 MB an array, about 25 MB at once, which would set the daemon's peak memory)."""
     H, W = image.shape[:2]
     tilt = math.tan(math.radians(opts.max_tilt_deg))
     # the cone below the vanishing point where straight ground lines are near-vertical too

@@ -44,8 +44,8 @@ log = logging.getLogger(__name__)
 
 BLOCK = 256
 # GDAL's block cache during reads here, MB: ten 512 x 512 RGB tiles of a tiled GeoTIFF (0.79 MB each; a 512 px
-# crop's window spans at most 3 x 3), so the blocks cached here decode each tile about once. It was the daemon's
-# setting for its whole run (issue 31); every reader of a mosaic takes it now.
+# crop's window spans at most 3 x 3), so the blocks cached here decode each tile about once. Every reader of a
+# mosaic takes it, so no reader's cache grows by every file block it reads.
 GDAL_CACHE_MB = 8
 
 

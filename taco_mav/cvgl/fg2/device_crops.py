@@ -1,4 +1,4 @@
-"""Heading-up satellite crops resampled on the matcher's torch device (fg2.device_crops, issue 17).
+"""Heading-up satellite crops resampled on the matcher's torch device (fg2.device_crops).
 
 `SatelliteMap.crop` cuts each crop on the CPU (one cv2.warpAffine) and the matcher uploads the K uint8 crops.
 `DeviceCropper.cut` instead resamples the K crops of a trigger on the device in ONE batched bilinear call
