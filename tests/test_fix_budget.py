@@ -1,21 +1,21 @@
-"""tools/fix_budget_bound.py: the Riccati bound equals a simulated Kalman filter's error; it moves the right way
-with fix quality, spacing and latency; bad input is named."""
+"""taco_mav/evaluation/fix_budget.py: the Riccati bound equals a simulated Kalman filter's error; it moves the right
+way with fix quality, spacing and latency; its command line (tools/fix_budget_bound.py) prints the table and names
+bad input."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
+import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-spec = importlib.util.spec_from_file_location("fix_budget_bound",
-                                              Path(__file__).parents[1] / "tools" / "fix_budget_bound.py")
-bound = importlib.util.module_from_spec(spec)
-sys.modules["fix_budget_bound"] = bound
-spec.loader.exec_module(bound)
+from taco_mav.errors import UsageError
+from taco_mav.evaluation import fix_budget as bound
+
+TOOL = Path(__file__).resolve().parents[1] / "tools" / "fix_budget_bound.py"
 
 
 def _simulated_rms(drift, sigma: float, period: float, latency: float, n: int, seed: int) -> float:
@@ -70,16 +70,37 @@ def test_the_bound_grows_with_fix_error_spacing_and_latency_and_knows_each_fixs_
     assert bound.along_track_rms(drift, drawn, 4.0, 1.0) < rms(rms_of_mix, 4.0)
 
 
-def test_the_command_prints_fixes_per_km_and_names_bad_input(capsys):
-    assert bound.main(["--q-speed", "0.035", "--fix-sigma", "0.8", "--spacings", "25,40", "--latencies", "0,1",
-                       "--fixes", "300"]) == 0
-    out = capsys.readouterr().out.splitlines()
+def test_the_table_has_a_cell_per_spacing_and_latency_and_names_bad_input():
+    table = bound.budget_table(bound.Drift(0.035), [(1.0, 0.8)], [25.0, 40.0], 8.2, [0.0, 1.0], fixes=300)
+    assert table.shape == (2, 2)
+    sigmas = np.full(300 + bound.BURN_IN, 0.8)
+    assert table[1, 1] == bound.along_track_rms(bound.Drift(0.035), sigmas, 40.0 / 8.2, 1.0)
+    assert table[0, 0] < table[1, 0] < table[1, 1]  # wider spacing, later answers: a larger error
+    assert bound.parse_mix("0.5:0.2,2:1.4") == [(0.5, 0.2), (2.0, 1.4)]
+    for bad in ("0.5:0.2,oops", "0:1", "1:-0.1"):
+        with pytest.raises(UsageError, match="--fix-mix item"):
+            bound.parse_mix(bad)
+    with pytest.raises(UsageError, match="spacings > 0"):
+        bound.budget_table(bound.Drift(0.035), [(1.0, 0.8)], [40.0, 0.0], 8.2, [0.0], fixes=300)
+    with pytest.raises(ValueError, match="more than 50 fixes"):
+        bound.along_track_rms(bound.Drift(0.05), np.full(10, 0.5), 4.0)
+
+
+def _tool(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, str(TOOL), *args], capture_output=True, text=True, timeout=120)
+
+
+def test_the_command_prints_fixes_per_km_and_names_bad_input():
+    run = _tool("--q-speed", "0.035", "--fix-sigma", "0.8", "--spacings", "25,40", "--latencies", "0,1",
+                "--fixes", "300")
+    assert run.returncode == 0, run.stderr
+    out = run.stdout.splitlines()
     assert out[1].split() == ["spacing", "m", "fixes/km", "latency", "0", "s", "latency", "1", "s"]
     row40 = out[3].split()
     assert row40[:2] == ["40.0", "25.0"] and float(row40[2]) < float(row40[3])
-    assert bound.main(["--q-speed", "0.035", "--fix-mix", "0.5:0.2,oops", "--fixes", "300"]) == 2
-    assert "--fix-mix item 'oops'" in capsys.readouterr().err
-    assert bound.main(["--q-speed", "0.035", "--fix-sigma", "0.8", "--spacings", "40,0", "--fixes", "300"]) == 2
-    assert "spacings > 0" in capsys.readouterr().err
-    with pytest.raises(ValueError, match="more than 50 fixes"):
-        bound.along_track_rms(bound.Drift(0.05), np.full(10, 0.5), 4.0)
+    expected = bound.budget_table(bound.Drift(0.035), [(1.0, 0.8)], [40.0], 8.2, [0.0, 1.0], fixes=300)[0]
+    assert [float(c) for c in row40[2:]] == pytest.approx(expected, abs=5e-4)
+    run = _tool("--q-speed", "0.035", "--fix-mix", "0.5:0.2,oops", "--fixes", "300")
+    assert run.returncode == 2 and "--fix-mix item 'oops'" in run.stderr
+    run = _tool("--q-speed", "0.035", "--fix-sigma", "0.8", "--spacings", "40,0", "--fixes", "300")
+    assert run.returncode == 2 and "spacings > 0" in run.stderr
