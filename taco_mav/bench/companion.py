@@ -1,4 +1,4 @@
-"""The companion budget (issue 31): what `taco-mav run` costs a companion computer with a real camera path.
+"""The companion budget: what `taco-mav run` costs a companion computer with a real camera path.
 
 A flat synthetic world (`build_world`, seed `SEED`) is played by the autopilot simulator (`taco_mav.sim.Simulator`,
 in this process, real time, GNSS denied after the start-up fix, no SIMSTATE unasked: a real autopilot has no true

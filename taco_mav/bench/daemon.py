@@ -22,12 +22,12 @@ thread with the default output (GPS_INPUT at 5 Hz) and the emulator matcher fed 
   at real time and 5x faster than real time (`SPEEDUP_S` wall seconds; the daemon on the machine's clock, as
   beside SITL --speedup 5); gps_input_interval_p99_ms_5x: p99 interval there, autopilot ms.
 
-Recording (issue 30): the live path again with a real camera path, a 30 fps video file of the profile's frame
+Recording: the live path again with a real camera path, a 30 fps video file of the profile's frame
 size read by OpenCV (`VideoSource`), first without then with `--record` (5 Hz JPEGs into a temporary session
 folder). Keys: gps_input_interval_p99_ms_camera, gps_input_interval_p99_ms_recording, and their difference,
 recording_interval_p99_delta_ms (what recording costs the output's timing); recording_frames kept.
 
-Companion budget (issue 31, `taco_mav.bench.companion`): `taco-mav run` as a separate process (ardupilot_rover,
+Companion budget (`taco_mav.bench.companion`): `taco-mav run` as a separate process (ardupilot_rover,
 taco+, classical matcher, camera speed, 5 Hz GPS_INPUT) with a 30 fps MJPG video as its camera, over a 65 s
 simulated mission: daemon_cpu_cores (CPU time / wall time, target <= 0.1 of one x86 core) and daemon_rss_mb (peak
 RSS, target <= 250 MB), with what the mission did beside them (daemon_budget_*, daemon_startup_cpu_s).

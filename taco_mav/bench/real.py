@@ -51,10 +51,10 @@ from taco_mav.errors import DataError
 log = logging.getLogger(__name__)
 
 SUCCESS_M = 3.0  # an answer within this of the camera is right (the synthetic bench's success)
-PRIOR_OFFSET_M = (4.0, 8.0)  # the prior's distance from the truth, uniform (issue 37)
+PRIOR_OFFSET_M = (4.0, 8.0)  # the prior's distance from the truth, uniform (a lost taco+'s prior)
 HEADING_NOISE_DEG = 3.0  # the query heading's error, uniform within +-
 VIEW_BEARINGS_DEG = (0.0, 90.0, 180.0, 270.0)  # per place, turned by a seeded angle
-VIEW_FOVS_DEG = (60.0, 90.0)  # horizontal fields of view cut from a panorama (the issue's 60-100 deg)
+VIEW_FOVS_DEG = (60.0, 90.0)  # horizontal fields of view cut from a panorama (a rover camera's 60-100 deg)
 VIEW_PITCH_DEG = 6.0  # the cut views' down-pitch (a rover's forward camera: the profiles' 0.1 rad)
 VIEW_WIDTH_PX = 320
 VIEW_ASPECT = 0.75  # height / width

@@ -331,8 +331,8 @@ class FreezeWatch:
     and the camera-speed loop's, each in its own thread and at its own rate). A guard that sees one picture at two
     frame times marks the camera frozen since the first; until that guard sees the picture change, every guard
     refuses frames stamped after that time. The matcher, one frame every few seconds, never sees a repeat of its
-    own: in SITL (issue 31) a hung camera's picture, 1 s old and stamped now, was taken as a fix 3 m behind the
-    rover. Times are frame times on the source's clock, s."""
+    own: without the shared watch, a hung camera's picture, 1 s old and stamped now, is a fix 3 m behind the rover
+    (SITL, docs/sitl.md). Times are frame times on the source's clock, s."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()

@@ -13,7 +13,7 @@ One module per concern, every public name re-exported here (`from taco_mav.confi
 - `fields`: `Estimator` and the `bounded` range metadata every section uses;
 - the estimator's sections are the core's parameter classes, defined once there and re-exported here:
   core/params.py (the paper's imu, error_model, trigger, gate, ukf, smoother, and latency), core/plus/params.py
-  (taco+, issues 7, 17-19), core/gnss/params.py (the GNSS guard, issue 14);
+  (taco+), core/gnss/params.py (the GNSS guard);
 - `sensors`: camera, map and the matchers (classical, emulator, fg2);
 - `link`: the MAVLink link and the daemon's output;
 - `profile`: `Profile`, `replace_in`, `profile_to_dict`, `localiser_params`;

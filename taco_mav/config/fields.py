@@ -11,7 +11,7 @@ __all__ = ["Estimator", "bounded"]
 
 
 class Estimator(enum.Enum):
-    """Estimator mode: the paper exactly, or our improvements (issue 7)."""
+    """Estimator mode: the paper exactly, or our improvements (taco+, docs/taco_plus.md)."""
 
     PAPER = "paper"
     TACO_PLUS = "taco+"

@@ -71,7 +71,7 @@ class ClassicalMatcherConfig:
     rotation_step_rad: float = field(default=math.radians(4.0), metadata=bounded(0.0, math.pi, open_lo=True))
     # Dense descriptor the matcher correlates (taco_mav/cvgl/descriptors.py): "orientation" (gradient orientation
     # in doubled-angle form: blind to an edge's polarity, so it survives a camera and a map that disagree on
-    # which material is brighter) or "lcn" (grey-level local contrast normalisation, the matcher before issue 17).
+    # which material is brighter) or "lcn" (grey-level local contrast normalisation: blind to gain and offset only).
     # docs/matchers.md compares them on flat worlds with and without an appearance gap.
     descriptor: str = "orientation"
     # The channel described (classical.py _to_grey): "luma" (brightness) or "unsaturated" (255 - saturation).
@@ -82,7 +82,8 @@ class ClassicalMatcherConfig:
     # ground band above those rows as well.
     mask_vertical: bool = True
     # Standing vegetation (trees, hedges: green regions that reach the horizon) masked by colour, from their foot
-    # up (taco_mav/cvgl/masks.py vegetation_mask); exg_min its least excess-green index. Off by default (issue 38).
+    # up (taco_mav/cvgl/masks.py vegetation_mask); exg_min its least excess-green index. Off by default: on real
+    # imagery it does not make the matcher place a view (docs/matchers.md).
     mask_vegetation: bool = False
     vegetation_exg_min: float = field(default=0.05, metadata=bounded(-1.0, 2.0))
     ego_mask_rows: int = field(default=0, metadata=bounded(0))

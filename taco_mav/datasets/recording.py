@@ -1,4 +1,4 @@
-"""A drive recorded by the daemon (`taco-mav run --log-dir DIR --record`, issue 30): the session's mav.tlog for
+"""A drive recorded by the daemon (`taco-mav run --log-dir DIR --record`): the session's mav.tlog for
 the IMU, attitude and the real receiver's fixes (the ground truth, never fused: `datasets.tlog`), and its
 frames/ folder for the camera (frames.csv: each JPEG's capture time on the autopilot clock, the IMU's clock).
 `taco-mav eval --tlog SESSION/mav.tlog --frames SESSION/frames --map MAP.tif` runs the pipeline the daemon runs

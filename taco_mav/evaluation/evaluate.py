@@ -30,7 +30,7 @@ ABLATIONS: dict[str, dict[str, Any]] = {
     "isotropic_noise": {"ukf.anisotropic": False},
     "no_forward_bias": {"trigger.forward_bias": False},
     "ukf_only": {"smoother.enabled": False},
-    # taco+ (issue 18); with --estimator paper these change nothing
+    # taco+; with --estimator paper these change nothing
     "no_distance_trigger": {"plus.trigger_distance_m": 0.0},
     "no_report_calibration": {"plus.report_calibration": False},
     "w_weighted_consensus": {"plus.consensus_weight_power": 1.0},
