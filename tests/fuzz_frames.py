@@ -5,7 +5,7 @@ Fuzz frames for the daemon: a seeded valid autopilot stream and seeded mutated /
 `AutopilotStream` is a level ArduPilot rover driving a straight line (heading `yaw_deg` true, `speed` m/s) seen
 from its MAVLink side: per 10 ms step of autopilot time it emits the IMU message of the episode's kind (100 Hz),
 ATTITUDE (50 Hz), SIMSTATE (10 Hz), HEARTBEAT / SYSTEM_TIME / a TIMESYNC request (1 Hz) and GPS2_RAW (a real
-receiver as GPS2, 4 Hz for the first second; GPS1 = GPS_RAW_INT is the daemon's own GPS_INPUT, issue 14).
+receiver as GPS2, 4 Hz for the first second; GPS1 = GPS_RAW_INT is the daemon's own GPS_INPUT).
 Every frame is sysid 1, compid 1, MAVLink 2, as raw bytes.
 
 `Mutator.frame()` draws one mutation (see MUTATIONS) and returns its name and the datagrams to send. Everything

@@ -39,9 +39,9 @@ m = mavutil.mavlink
 # FG2's failure modes off (tests/test_emulator.py and tests/test_honesty.py test them). The emulator seeds each draw
 # with the frame time in ms, and a link test's frame times follow the wall clock: with the modes on, 1 frame time in
 # 25 or so is a silent outlier or a symmetric lock (4.5 % of draws at seed 0), which the daemon rightly accepts or
-# rejects and reports as a 13 m accuracy and fix type 1 for a couple of seconds. That failed CI at stop 39 in
-# test_daemon.py (the first check frame at t = 100.81 s drew a 12.9 m silent outlier). A link test asserts what
-# the link carries, so its matcher answers with FG2's nominal error only.
+# rejects and reports as a 13 m accuracy and fix type 1 for a couple of seconds (in test_daemon.py a check frame at
+# t = 100.81 s draws a 12.9 m silent outlier). A link test asserts what the link carries, so its matcher answers
+# with FG2's nominal error only.
 STEADY_EMULATOR = {"symmetric_lock_rate": 0.0, "silent_outlier_rate": 0.0}
 
 

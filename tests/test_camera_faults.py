@@ -57,14 +57,14 @@ def test_guard_verdicts() -> None:
 
 
 def test_a_freeze_one_consumer_sees_is_refused_by_the_other() -> None:
-    """Issue 31 (SITL): the matcher, one frame every few seconds, never sees a picture twice, so a hung camera's
-    picture, a second old and stamped now, passed its guard and was taken as a fix 3 m behind the rover. The
+    """The matcher, one frame every few seconds, never sees a picture twice, so a hung camera's picture, a second
+    old and stamped now, passes its own guard and would be a fix 3 m behind the rover (SITL, docs/sitl.md). The
     camera-speed loop's guard (grey, every 0.5 s) sees the repeat; through the shared FreezeWatch the matcher's
     guard refuses frames stamped after the freeze began until that loop sees the picture change."""
     watch = FreezeWatch()
     fix = FrameGuard(160, 120, max_gap_s=0.15, freeze=watch)
     speed = FrameGuard(160, 120, max_gap_s=0.15, grey=True, freeze=watch)
-    alone = FrameGuard(160, 120, max_gap_s=0.15)  # the matcher's guard as it was: no shared watch
+    alone = FrameGuard(160, 120, max_gap_s=0.15)  # a guard without the shared watch
     hung = noise_image(2)
     assert _reason(fix, (5.0, noise_image(1)), 5.0) == "ok" and _reason(alone, (5.0, noise_image(1)), 5.0) == "ok"
     assert _reason(speed, (5.5, np.ascontiguousarray(hung[..., 0])), 5.5) == "ok"

@@ -1,4 +1,4 @@
-"""The companion budget (issue 31, `taco_mav.bench.companion`): what a `taco-mav run` with a real camera loads,
+"""The companion budget (`taco_mav.bench.companion`): what a `taco-mav run` with a real camera loads,
 the /proc readings the bench divides, and the simulator that streams no true pose unasked. Behaviour only: the
 figures themselves (CPU cores, peak RSS) live in `taco-mav bench`'s JSON."""
 

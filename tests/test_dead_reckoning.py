@@ -1,4 +1,4 @@
-"""Dead reckoning of real KITTI IMU (issue 3): gravity-compensated forward acceleration integrated to speed,
+"""Dead reckoning of real KITTI IMU: gravity-compensated forward acceleration integrated to speed,
 heading from the attitude, lands in the tens of metres of ATE on odometry 05, not hundreds."""
 
 import numpy as np

@@ -114,7 +114,7 @@ def test_synthetic_world_with_the_classical_matcher_end_to_end(tmp_path):
 
 
 def test_taco_plus_beats_paper_mode_on_real_kitti_at_a_fraction_of_the_fixes(tmp_path, kitti_root):
-    """Issue 7 on KITTI 05 and 07 OXTS (FG2 same-area emulator, seed 0, 1 s-late fixes): taco+ has a lower ATE
+    """KITTI 05 and 07 OXTS (FG2 same-area emulator, seed 0, 1 s-late fixes): taco+ has a lower ATE
     than paper mode at under half its fixes and within the 40 fixes/km budget, never declares a loss of lock,
     and its offline smoother improves on its online estimate."""
     seqs = ("05", "07")
@@ -146,7 +146,7 @@ def test_cross_area_flag_uses_fg2s_cross_area_figures(tmp_path, kitti_root):
 
 
 def test_taco_plus_on_real_kitti_07_meets_issue_18s_accuracy_and_reports_an_honest_accuracy(tmp_path, kitti_root):
-    """Issue 18 end to end on KITTI 07 OXTS (FG2 same-area emulator, seed 0, kitti profile): ATE within 0.5 m at
+    """The kitti profile end to end on KITTI 07 OXTS (FG2 same-area emulator, seed 0): ATE within 0.5 m at
     no more than 30 fixes/km, and the reported horizontal accuracy (a per-axis 1-sigma) covers the true error
     as a 1-sigma should: 2-sigma coverage between 85 and 98 % (docs/evaluation.md). The coverage fields are in
     results.json per sequence and pooled in the summary, and in the table."""

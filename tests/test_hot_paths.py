@@ -1,4 +1,4 @@
-"""The per-IMU-sample hot paths rewritten for speed (issue 18) against their straightforward originals: the
+"""The per-IMU-sample hot paths written for speed against their straightforward references: the
 Preintegrator's step (helpers inlined) and the StationaryDetector's window (parallel deques). Random streams with
 a seed; the rewrites keep every operation and its order, so the comparison is exact."""
 

@@ -76,7 +76,7 @@ def test_live_synthetic_classical(small_world: Path) -> None:
 
 
 def test_live_taco_plus_camera_speed(small_world: Path) -> None:
-    """taco+ with the camera's ground-plane motion as a speed measurement (issue 19) through the daemon:
+    """taco+ with the camera's ground-plane motion as a speed measurement through the daemon:
     measurements arrive at ~2 Hz of autopilot time and are used; the figures with and without it."""
     seq, summary = run_live(small_world, "synthetic", speed=5.0, camera=f"world:{small_world}", duration_s=40.0,
                             lockstep=True, estimator="taco+")

@@ -91,5 +91,5 @@ def test_calibrated_gaussian_errors_fall_in_the_documented_coverage_bands(ratio)
         c = coverage(r, h, float(k))
         expected = lo if ratio == 1.0 else hi
         assert c == pytest.approx(expected, abs=0.01)
-    assert 0.85 <= coverage(r, h, 2.0) <= 0.98  # the band holds for any calibrated shape
+    assert 0.85 <= coverage(r, h, 2.0) <= 0.98  # the target band (docs/evaluation.md) holds for any calibrated shape
     assert coverage(r, 2.0 * h, 2.0) > 0.98 and coverage(r, 0.5 * h, 2.0) < 0.85  # and flags a factor 2 either way

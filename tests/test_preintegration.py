@@ -108,7 +108,7 @@ def _level_drive(pitch_reported, tilt_lowpass_s: float, seconds: float = 10.0, a
 
 
 def test_a_wobbling_reported_pitch_is_low_passed_out_of_the_speed():
-    """Issue 31: an autopilot whose EKF fuses our output reports a pitch that wobbles (SITL EKF3: 0.3 deg, std, on
+    """An autopilot whose EKF fuses our output reports a pitch that wobbles (SITL EKF3: 0.3 deg, std, on
     level ground). Taken sample by sample it integrates into the speed; low-passed over 30 s (the rover profiles) a
     20 s wobble of 0.4 deg costs a sixth of that."""
     wobble = lambda t: math.radians(0.4) * math.sin(2 * math.pi * t / 20.0)  # noqa: E731

@@ -29,7 +29,7 @@ def test_on_real_imagery_nothing_wrong_is_accepted_and_the_unchecked_matcher_rep
     rover = load_profile("ardupilot_rover")
     tries, keys = real.evaluate_real(root, rover, places_per_set=PLACES)
     assert keys["real_tries"] == 8 * PLACES and keys["real_places"] == PLACES
-    # the classical matcher cannot read these scenes (issue 37: the best answer ~24 m off, the prior ~6 m)
+    # the classical matcher cannot read these scenes (the best answer ~24 m off, the prior ~6 m; docs/matchers.md)
     assert keys["real_within_3m_share"] <= 0.1
     assert keys["real_median_error_m"] > 2.0 * keys["real_median_prior_error_m"]
     assert 4.0 <= keys["real_median_prior_error_m"] <= 8.0

@@ -1,4 +1,4 @@
-"""Recording the camera's frames (daemon/record.py, issue 30): a real OpenCV video played by `VideoSource` on the
+"""Recording the camera's frames (daemon/record.py): a real OpenCV video played by `VideoSource` on the
 companion clock, kept as JPEGs with both clocks in frames.csv, read back by `FolderSource` on the autopilot
 clock; the disk budget; and `--record` through the daemon beside the simulator over UDP."""
 

@@ -1,4 +1,4 @@
-"""A recorded session evaluated offline (datasets/recording.py, issue 30): the daemon beside the simulator over
+"""A recorded session evaluated offline (datasets/recording.py): the daemon beside the simulator over
 UDP records mav.tlog and frames/ (GPS1 our echo, GPS2 a real receiver honest throughout); `taco-mav eval --tlog
 --frames --map` then runs the same pipeline on the recording, scored against the receiver (never fused), with
 the classical matcher on the world's mosaic. Also: an echo is never taken for truth; bad inputs are named."""

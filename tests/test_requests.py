@@ -1,5 +1,5 @@
 """SET_MESSAGE_INTERVAL requests as ArduPilot answers them (mavlink/requests.py): a rate it calls "too fast" is
-asked for again slower (ArduPilot Rover SITL refuses 50 Hz and takes 40 Hz, issue 19), then falls back to a
+asked for again slower (ArduPilot Rover SITL refuses 50 Hz and takes 40 Hz), then falls back to a
 data stream; real pymavlink messages through a real MAVLink encoder/decoder."""
 
 import os

@@ -166,4 +166,4 @@ def test_cli_sim_gnss_arguments(monkeypatch: pytest.MonkeyPatch, tmp_path) -> No
     assert (seen["spoof_after_s"], seen["spoof_drift_mps"], seen["spoof_jump_m"]) == (60.0, 0.5, 10.0)
     assert seen["home"] == (49.0, 8.4, 115.0) and seen["send_home"] and seen["deny_after_s"] == 0.0
     assert main(["sim", "-q", "--drive", "x", "--connect", "udpout:127.0.0.1:9", "--out", str(tmp_path),
-                 "--home", "49.0"]) == 2  # a usage error (issue 16: exit 2)
+                 "--home", "49.0"]) == 2  # a usage error: exit 2

@@ -24,7 +24,7 @@ def test_a_stop_is_still_and_a_smooth_acceleration_is_not():
 
 
 def test_without_the_mean_check_a_smooth_acceleration_looks_still():
-    det = StationaryDetector(1.0, 0.02, 0.05)  # accel_mean_max: inf, the detector before issue 19
+    det = StationaryDetector(1.0, 0.02, 0.05)  # accel_mean_max: inf, no mean check
     _feed(det, 1.0, 0.0)
     assert det.stationary
 

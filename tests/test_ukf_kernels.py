@@ -19,7 +19,7 @@ from taco_mav.core.ukf import (PlanarUkf, _motion, _residual_x, fix_covariance, 
 
 
 class ReferenceUkf:
-    """PlanarUkf as it was before the kernels: filterpy's predict, numpy Joseph updates."""
+    """A reference PlanarUkf without the kernels: filterpy's predict, numpy Joseph updates."""
 
     def __init__(self, x0: np.ndarray, P0: np.ndarray, alpha: float = 1e-3, beta: float = 2.0,
                  kappa: float = 0.0) -> None:

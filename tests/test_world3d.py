@@ -238,8 +238,8 @@ def test_live_taco_plus_on_a_3d_world(world3d: Path) -> None:
     """End to end: the simulator plays the 3d world, the daemon renders its frames through `world:DIR`
     (perspective, occlusion) for the classical matcher, taco+ with profile synthetic_3d (the map's offset as
     states), 30 s at 5x (lockstep). Checked: the autopilot's rate rules, frames reach the matcher and fixes are
-    accepted, the track stays within 2 m. (The issue's bar, ATE <= 1 m with >= 95 % EKF3 gate passes over whole
-    1 km drives, is measured in docs/taco_plus.md, "The map's offset".)"""
+    accepted, the track stays within 2 m. (ATE and EKF3 gate passes over whole 1 km drives are measured in
+    docs/taco_plus.md, "3-D synthetic worlds, live".)"""
     from tests.test_live import assert_autopilot_accepts_rate, run_live
 
     seq, summary = run_live(world3d, "synthetic_3d", speed=5.0, camera=f"world:{world3d}", duration_s=30.0,
