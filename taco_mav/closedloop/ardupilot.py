@@ -1,4 +1,4 @@
-"""Closed loop on ArduPilot Rover SITL driven by taco-mav (issue 19).
+"""Closed loop on ArduPilot Rover SITL driven by taco-mav (docs/sitl.md).
 
 Starts `ardurover` (built by ../shared/tools/build_ardupilot_sitl.sh) on free TCP ports, the daemon
 (`taco-mav run`, a subprocess exactly as a user starts it) on SITL's SERIAL1 with a camera rendered from a
@@ -62,13 +62,13 @@ class MissionSpec:
     home: tuple[float, float, float, float] = HOME
     extra_params: dict[str, float] = field(default_factory=dict)
     daemon_origin: bool = False  # give the daemon --origin (home) instead of letting it find one
-    restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO and start it again (issue 30)
+    restart_after_s: float | None = None  # SIGTERM the daemon this long after AUTO and start it again
     daemon_args: tuple[str, ...] = ()  # more `taco-mav run` options (e.g. --record, --shadow)
     fault: str | None = None  # a fault on cue (faults.py: camera, stall, link, glitch, spoof)
     fault_after_s: float = 60.0  # ... this long after AUTO
-    realism: str = "flat"  # the world the camera sees: flat (the mosaic painted on the ground) or 3d (issue 31)
+    realism: str = "flat"  # the world the camera sees: flat (the mosaic painted on the ground) or 3d
     # the daemon's map is another world's mosaic (this seed) over the same ground: a camera that cannot read the
-    # map it is given, every answer wrong (issue 37); None: the world's own map
+    # map it is given, every answer wrong; None: the world's own map
     map_seed: int | None = None
     # a 3-D world keeps its buildings, trees and cars off the square; False drives the square through them (issue
     # 37: the camera cannot read the ground for long stretches)

@@ -1,4 +1,4 @@
-"""Faults in closed loop on ArduPilot Rover SITL (issue 31): what a mission with `fault=KIND` (`taco-mav mission
+"""Faults in closed loop on ArduPilot Rover SITL (docs/sitl.md): what a mission with `fault=KIND` (`taco-mav mission
 --fault KIND`, `tools/sitl_mission.py --fault KIND`) does to the rover while it runs, `fault_after_s` seconds after
 AUTO.
 

@@ -95,8 +95,8 @@ def _ekf_bounded_share(log: list[tuple[float, Any]], T: np.ndarray, ekf: np.ndar
                        auto_t: float | None, moving_mps: float = 0.5) -> float | None:
     """Share of the EKF's samples taken while the rover moves (truth faster than moving_mps) whose error is within
     max(3 m, 2 x the 1-sigma we last reported): `ours_kind`'s h_acc, whatever its fix type (a degraded report's
-    accuracy counts: it told the autopilot how little to trust it). Issue 37's bound for a camera that cannot read
-    the ground. None without such samples."""
+    accuracy counts: it told the autopilot how little to trust it): the bound for never following a wrong fix,
+    for a camera that cannot read the ground (docs/sitl.md). None without such samples."""
     acc = [(t, m.h_acc * 1e-3) for t, m in log if m.get_type() == ours_kind and (auto_t is None or t >= auto_t)]
     if not acc or len(ekf) == 0 or len(T) < 3:
         return None
