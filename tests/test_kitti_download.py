@@ -1,32 +1,23 @@
-"""Tests of tools/download_kitti.py without network: URLs, target names, unpacking a zip in KITTI's layout."""
+"""taco_mav/datasets/kitti_download.py without network: URLs, target names, unpacking a zip in KITTI's layout, and
+its command line (tools/download_kitti.py) printing the URLs of a dry run."""
 
 from __future__ import annotations
 
-import importlib.util
+import subprocess
 import sys
 import zipfile
 from pathlib import Path
-from types import ModuleType
 
 import cv2
 import numpy as np
 import pytest
 
+from taco_mav.datasets import kitti_download as dk
 from taco_mav.datasets.kitti import load_drive
 from taco_mav.errors import DataError, UsageError
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "download_kitti.py"
 UNREACHABLE = "http://127.0.0.1:9/none"  # discard port: any attempt to fetch fails at once
-
-
-@pytest.fixture(scope="module")
-def dk() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("download_kitti", TOOL)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["download_kitti"] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 OXTS_LINE = ("49.0495 8.3966 113.0 0.03 0.02 1.74 5.37 -0.90 5.45 0.02 -0.06 -0.38 0.26 9.80 -0.17 -0.04 9.81 "
@@ -54,7 +45,7 @@ def make_drive_zip(path: Path, drive: str, n: int = 3, with_oxts: bool = True) -
     return path
 
 
-def test_urls(dk: ModuleType) -> None:
+def test_urls() -> None:
     assert dk.drive_url("2011_09_30_drive_0018") == (
         "https://s3.eu-central-1.amazonaws.com/avg-kitti/raw_data/2011_09_30_drive_0018/2011_09_30_drive_0018_sync.zip")
     assert dk.calib_url("2011_09_26") == "https://s3.eu-central-1.amazonaws.com/avg-kitti/raw_data/2011_09_26_calib.zip"
@@ -62,7 +53,7 @@ def test_urls(dk: ModuleType) -> None:
         "http://mirror/raw/2011_09_26_drive_0005/2011_09_26_drive_0005_sync.zip"
 
 
-def test_resolve_targets(dk: ModuleType) -> None:
+def test_resolve_targets() -> None:
     assert dk.resolve_targets(["05", "5", "2011_09_26_drive_0005_sync"]) == ["2011_09_30_drive_0018",
                                                                            "2011_09_26_drive_0005"]
     assert dk.resolve_targets(["07-09,4"]) == ["2011_09_30_drive_0027", "2011_09_30_drive_0028",
@@ -74,16 +65,19 @@ def test_resolve_targets(dk: ModuleType) -> None:
         dk.resolve_targets(["kitti"])
 
 
-def test_dry_run_prints_urls_and_fetches_nothing(dk: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert dk.main(["05", "03", "--root", str(tmp_path), "--dry-run"]) == 0
-    lines = capsys.readouterr().out.split()
-    assert lines == [dk.calib_url("2011_09_30"), dk.calib_url("2011_09_26"),
-                     dk.drive_url("2011_09_30_drive_0018"), dk.drive_url("2011_09_26_drive_0067")]
+def test_dry_run_prints_urls_and_fetches_nothing(tmp_path: Path) -> None:
+    run = subprocess.run([sys.executable, str(TOOL), "05", "03", "--root", str(tmp_path), "--dry-run"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == [dk.calib_url("2011_09_30"), dk.calib_url("2011_09_26"),
+                                  dk.drive_url("2011_09_30_drive_0018"), dk.drive_url("2011_09_26_drive_0067")]
     assert not any(tmp_path.iterdir())
-    assert dk.main(["99", "--root", str(tmp_path), "--dry-run"]) == 2
+    run = subprocess.run([sys.executable, str(TOOL), "99", "--root", str(tmp_path), "--dry-run"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "unknown KITTI odometry sequence '99'" in run.stderr
 
 
-def test_install_keeps_selected_folders_and_loads(dk: ModuleType, tmp_path: Path) -> None:
+def test_install_keeps_selected_folders_and_loads(tmp_path: Path) -> None:
     drive = "2011_09_30_drive_0018"
     root = tmp_path / "kitti"
     zip_path = make_drive_zip(tmp_path / "d.zip", drive)
@@ -99,7 +93,7 @@ def test_install_keeps_selected_folders_and_loads(dk: ModuleType, tmp_path: Path
     assert dk.unpack(zip_path, tmp_path / "all", folders=None) == 10  # everything, velodyne included
 
 
-def test_incomplete_zip_and_unsafe_members_are_refused(dk: ModuleType, tmp_path: Path) -> None:
+def test_incomplete_zip_and_unsafe_members_are_refused(tmp_path: Path) -> None:
     drive = "2011_09_30_drive_0027"
     zip_path = make_drive_zip(tmp_path / "d.zip", drive, with_oxts=False)
     with pytest.raises(DataError, match="drive is incomplete: .*oxts/data missing"):
@@ -116,7 +110,7 @@ def test_incomplete_zip_and_unsafe_members_are_refused(dk: ModuleType, tmp_path:
         dk.unpack(tmp_path / "bad.zip", tmp_path / "root")
 
 
-def test_half_drive_is_not_overwritten(dk: ModuleType, tmp_path: Path) -> None:
+def test_half_drive_is_not_overwritten(tmp_path: Path) -> None:
     half = tmp_path / "2011_09_30" / "2011_09_30_drive_0018_sync" / "oxts"
     half.mkdir(parents=True)
     (tmp_path / "2011_09_30" / "calib_cam_to_cam.txt").write_text("")
@@ -124,7 +118,7 @@ def test_half_drive_is_not_overwritten(dk: ModuleType, tmp_path: Path) -> None:
         dk.fetch(["2011_09_30_drive_0018"], tmp_path, base_url=UNREACHABLE)
 
 
-def test_download_failure_is_a_data_error(dk: ModuleType, tmp_path: Path) -> None:
+def test_download_failure_is_a_data_error(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="download failed .*run again to resume"):
         dk.download(UNREACHABLE + "/x.zip", tmp_path / "x.zip", timeout_s=2.0)
     assert not (tmp_path / "x.zip").exists()
