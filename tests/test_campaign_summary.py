@@ -3,6 +3,7 @@ table (Parquet or CSV) with the factors as columns, and a box per configuration.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +51,11 @@ def test_the_summary_per_configuration_is_the_hand_computed_one() -> None:
                                                                                                0.27, None)
     text = summary_text([solo, ev])
     assert "ardupilot: setup=solo" in text and " 1.25   2.77   3.00   0.850   0.700  4/5" in text
+    # a configuration longer than the column's 48 characters widens it rather than being cut short
+    long = dataclasses.replace(ev, configuration="eval: cross_area=True, estimator=taco+, latency_s=1, sequence=09")
+    head, _, solo_row, long_row = summary_text([solo, long]).splitlines()
+    assert long_row.startswith(long.configuration + " ATE       0.27   0.27   0.27")
+    assert head.index("error") == solo_row.index("EKF RMS") == long_row.index("ATE") == len(long.configuration) + 1
 
 
 def test_the_table_has_a_row_per_run_and_the_factors_as_columns(tmp_path: Path) -> None:

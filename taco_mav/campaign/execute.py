@@ -126,8 +126,8 @@ def _eval(params: dict[str, Any], work: Path, context: dict[str, Any]) -> dict[s
     req = EvalRequest(out=work / "eval", profile=profile, kitti_root=Path(root) if root else None,
                       sequences=(params["sequence"],) if params["sequence"] is not None else (),
                       drives=(Path(params["drive"]),) if params["drive"] is not None else (), matcher=params["matcher"],
-                      seed=params["seed"], latency_s=params["latency_s"], estimator=params["estimator"], plots=False,
-                      progress=False)
+                      seed=params["seed"], latency_s=params["latency_s"], estimator=params["estimator"],
+                      cross_area=params["cross_area"], plots=False, progress=False)
     results = evaluate(req)
     (seq,) = results["sequences"].values()
     return {**seq, "completed": seq.get("ate_m") is not None, "failsafe": False}

@@ -53,7 +53,9 @@ class EvalRun:
     """An offline evaluation of one drive. sequence: a KITTI odometry id (with kitti_root: the KITTI raw root,
     default the one `taco-mav eval` finds, TACO_KITTI_ROOT or ../shared/data/kitti_raw) or drive: a KITTI-layout
     or synthetic world folder; profile: name or YAML path; matcher, estimator: overrides (None: the profile's);
-    seed: the emulator's draws; latency_s: each fix delivered this late, s."""
+    seed: the emulator's draws; latency_s: each fix delivered this late, s; cross_area: the emulator's FG2
+    cross-area figures for the drive, as `taco-mav eval --cross-area` (False: per the profile's
+    emulator.cross_area_sequences)."""
 
     sequence: str | None = None
     drive: str | None = None
@@ -63,6 +65,7 @@ class EvalRun:
     estimator: str | None = None
     seed: int = 0
     latency_s: float = 0.0
+    cross_area: bool = False
     set: dict[str, Any] = field(default_factory=dict)
 
 

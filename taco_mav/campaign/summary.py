@@ -82,12 +82,14 @@ def _f(value: float | None, digits: int = 2) -> str:
 
 
 def summary_text(summaries: list[ConfigSummary]) -> str:
-    """The summaries as a fixed-width table for the terminal (error in metres, coverage as a share)."""
-    head = (f"{'configuration':48s} {'error':7s} {'p50':>6s} {'p95':>6s} {'worst':>6s} {'cov p50':>7s} {'cov min':>7s} "
-            f"{'done':>5s} {'compl':>5s} {'fsafe':>5s} {'retry':>5s} {'fail':>4s}")
+    """The summaries as a fixed-width table for the terminal (error in metres, coverage as a share); the
+    configuration column is as wide as the longest configuration (at least 48 characters), none cut short."""
+    width = max([48, *(len(s.configuration) for s in summaries)])
+    head = (f"{'configuration':{width}s} {'error':7s} {'p50':>6s} {'p95':>6s} {'worst':>6s} {'cov p50':>7s} "
+            f"{'cov min':>7s} {'done':>5s} {'compl':>5s} {'fsafe':>5s} {'retry':>5s} {'fail':>4s}")
     lines = [head, "-" * len(head)]
     for s in summaries:
-        lines.append(f"{s.configuration[:48]:48s} {s.error_name:7s} {_f(s.error_p50_m):>6s} {_f(s.error_p95_m):>6s} "
+        lines.append(f"{s.configuration:{width}s} {s.error_name:7s} {_f(s.error_p50_m):>6s} {_f(s.error_p95_m):>6s} "
                      f"{_f(s.error_worst_m):>6s} {_f(s.coverage_p50, 3):>7s} {_f(s.coverage_min, 3):>7s} "
                      f"{s.done:>2d}/{s.runs:<2d} {s.completed:>5d} {s.failsafes:>5d} {s.retried:>5d} {s.failed:>4d}")
     return "\n".join(lines)
