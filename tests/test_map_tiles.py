@@ -2,7 +2,8 @@
 cut from a seeded Web Mercator mosaic; the UTM GeoTIFF written through GDAL's WMS driver must match the mosaic
 (geolocation within a pixel, high correlation), be tiled, compressed and transparent where the server had no tile,
 come from the cache on a second run, survive dropped and late tiles, and fail with a named error when the server
-is unreachable, refuses tiles, has none, or the disk is too small."""
+is unreachable, refuses tiles, has none, or the disk is too small. A local tile folder (a tile cache) read through
+a file:// template gives the same map."""
 
 from __future__ import annotations
 
@@ -374,6 +375,39 @@ def test_bbox_too_large_for_the_disk(server: TileServer, tmp_path: Path, monkeyp
         build_map(BBOX, f"{server.base}/ok/{{z}}/{{x}}/{{y}}.png", tmp_path / "x.tif", zoom=ZOOM,
                   cache_dir=tmp_path / "c", progress=False)
     assert not [p for p in (tmp_path / "c").rglob("*") if p.is_file()]  # nothing was fetched before the check
+
+
+# ---------------------------------------------------------------------------------------------------- a tile folder
+
+def write_tile_folder(mosaic: Mosaic, folder: Path) -> None:
+    """The mosaic's tiles as a local {z}/{x}/{y}.png folder (a tile cache), HOLE left out."""
+    rows, cols = mosaic.image.shape[0] // 256, mosaic.image.shape[1] // 256
+    for x in range(mosaic.x0, mosaic.x0 + cols):
+        for y in range(mosaic.y0, mosaic.y0 + rows):
+            if (x, y) != HOLE:
+                (folder / str(ZOOM) / str(x)).mkdir(parents=True, exist_ok=True)
+                (folder / str(ZOOM) / str(x) / f"{y}.png").write_bytes(_png(mosaic.tile(x, y)))
+
+
+def test_a_local_tile_folder_through_a_file_template(tmp_path: Path) -> None:
+    """A tile cache on disk is a source like a server: `file:///DIR/{z}/{x}/{y}.png`. The map matches the
+    mosaic (geolocation within 0.1 px), the missing tile is transparent, an empty folder is a named error."""
+    mosaic, tiles = make_mosaic(), tmp_path / "tiles"
+    write_tile_folder(mosaic, tiles)
+    out = tmp_path / "local.tif"
+    res = build_map(BBOX, f"file://{tiles}/{{z}}/{{x}}/{{y}}.png", out, zoom=ZOOM, m_per_px=0.3,
+                    cache_dir=tmp_path / "cache", progress=False)
+    assert res.epsg == 32632 and res.zoom == ZOOM and res.m_per_px == 0.3
+    assert 0.8 < res.imagery_fraction < 0.97
+    assert_matches_mosaic(mosaic, out, skip_hole=True)
+    with rasterio.open(out) as ds:
+        alpha = ds.read(4)
+    r, c = utm_pixel(out, *tile_centre(*HOLE))
+    assert (alpha[r - 5:r + 5, c - 5:c + 5] == 0).all()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(MapSourceError, match=r"file://.*/empty/18/\d+/\d+\.png: no imagery anywhere in the bbox"):
+        build_map(BBOX, f"file://{tmp_path / 'empty'}/{{z}}/{{x}}/{{y}}.png", tmp_path / "e.tif", zoom=ZOOM,
+                  cache_dir=tmp_path / "cache", progress=False)
 
 
 # ---------------------------------------------------------------------------------------------------- CLI

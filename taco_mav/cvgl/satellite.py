@@ -3,7 +3,7 @@
 Frames and units:
 - the mosaic is a north-up GeoTIFF in a UTM CRS (EPSG 326xx north / 327xx south); E, N are absolute UTM metres.
   Other CRSs are refused with a `MapError` naming the file and its CRS: reprojecting every crop would be slow and
-  silently resample twice, so reproject the mosaic once instead (`tools/build_mosaic.py` writes UTM).
+  silently resample twice, so reproject the mosaic once instead (`taco-mav map` writes UTM).
 - mosaic pixel coordinates (col, row) follow OpenCV: pixel (i, j) has its centre at integer (i, j), so the pixel
   containing a point is (round(col), round(row)).
 - a crop of S x S pixels at s m/px is heading-up: the query heading theta (ENU rad, 0 = east, CCW) points to
@@ -95,7 +95,8 @@ class SatelliteMap:
             crs = ds.crs.to_string() if ds.crs is not None else "no CRS"
             ds.close()
             raise MapError(f"{self.path}: CRS is {crs}; a UTM CRS (EPSG:326xx or EPSG:327xx) is required "
-                           "(reproject the mosaic once, e.g. with tools/build_mosaic.py or gdalwarp -t_srs)")
+                           "(reproject the mosaic once, e.g. with rio warp or gdalwarp -t_srs, or build it with "
+                           "taco-mav map)")
         tr = ds.transform
         if abs(tr.b) > 1e-12 or abs(tr.d) > 1e-12 or tr.a <= 0 or tr.e >= 0:
             ds.close()

@@ -14,7 +14,7 @@ Frames and units:
   (its corners and edges projected into UTM).
 
 The GeoTIFF is RGBA uint8 (alpha 255 where the service had imagery, 0 where it had none), tiled in 512 x 512
-blocks, deflate-compressed, as `tools/build_mosaic.py` and the synthetic worlds write theirs, so that
+blocks, deflate-compressed, as the synthetic worlds write theirs, so that
 `taco_mav.cvgl.satellite.SatelliteMap` reads it directly. Its size and that of the tiles it needs are estimated
 before any request and compared with the free disk space.
 
