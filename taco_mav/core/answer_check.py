@@ -2,13 +2,13 @@
 
 A matcher's weight w is its confidence that the answer is right, but on a scene it cannot read its best wrong
 answer can carry as high a w as a right one: on real Street View beside satellite imagery the classical matcher's
-w was as high for answers 20-40 m off as the highest it gave (issue 37), and FG2's silent outliers carry ordinary
-weights too. So each trigger also asks the matcher for decoys (`taco_mav.cvgl.service.FixService`): the trigger's
-centre crop turned by a quarter, three quarters and half a turn, a heading known wrong. What the matcher scores
-there with a yaw residual within the gate (an answer that takes the wrong heading as right) is this scene's chance
-level, and it travels with each answer as `MatchResult.null_w`. A matcher that recovers the turn (|psi| beyond the
-gate) has recognised the place, and a decoy that lands where the answer does has found the same ground turned (a
-crossing looks alike a quarter turn round): neither is evidence of chance and neither counts.
+w was as high for answers 20-40 m off as the highest it gave (docs/matchers.md), and FG2's silent outliers carry
+ordinary weights too. So each trigger also asks the matcher for decoys (`taco_mav.cvgl.service.FixService`): the
+trigger's centre crop turned by a quarter, three quarters and half a turn, a heading known wrong. What the matcher
+scores there with a yaw residual within the gate (an answer that takes the wrong heading as right) is this scene's
+chance level, and it travels with each answer as `MatchResult.null_w`. A matcher that recovers the turn (|psi|
+beyond the gate) has recognised the place, and a decoy that lands where the answer does has found the same ground
+turned (a crossing looks alike a quarter turn round): neither is evidence of chance and neither counts.
 
 An answer is credible when it is usable (finite, w >= w_min) and, where the trigger had decoys, its log-odds
 log(w / (1 - w)) exceed the chance level's by at least `decoy_margin`; it is supported when, of the trigger's
@@ -19,9 +19,10 @@ search window, and the five crops often find it within 0.02 m of each other), no
 crop); both together refused every answer on the real pairs and kept every right one on the synthetic pairs.
 
 Where it applies: paper mode, which has no gate of its own, and taco+ while lock is lost, when nothing but this
-stands between an answer and a relocalisation (the relocalisations of 22 and 34 m issue 37 saw). While locked,
-taco+'s innovation gate against the track decides: on SITL's 3-D world its right answers have w 0.2-0.5 beside
-decoys at 0.7-0.99 (the synthetic streets repeat), which the decoy test would refuse.
+stands between an answer and a relocalisation (without it, a 3-D world driven through buildings relocalises by
+22 and 34 m on such answers: docs/matchers.md). While locked, taco+'s innovation gate against the track decides:
+on SITL's 3-D world its right answers have w 0.2-0.5 beside decoys at 0.7-0.99 (the synthetic streets repeat),
+which the decoy test would refuse.
 
 Weights in [0, 1]; positions metres; pure maths, no I/O.
 """

@@ -1,8 +1,8 @@
 """Chi-square quantiles of even degrees of freedom, for the live daemon's statistical tests (pure maths).
 
 scipy has them (`scipy.stats.chi2.isf`, `scipy.special.chdtri`), but scipy.special (with scipy.fft, which the
-matcher no longer uses either) costs a companion computer 8 MB of its 250 MB budget (issue 31), and the daemon
-needs nothing else from it (the filter's kernels take only scipy.linalg's LAPACK). An even number
+matcher does not use either) costs a companion computer 8 MB of its 250 MB budget (docs/companion.md), and the
+daemon needs nothing else from it (the filter's kernels take only scipy.linalg's LAPACK). An even number
 of degrees of freedom, 2 n (n 2-dof innovations, the only kind the daemon tests), has a closed form: a chi-square
 of 2 n degrees exceeds x exactly when a Poisson count of mean x / 2 is at most n - 1,
 

@@ -40,10 +40,11 @@ class ImuParams:
     # Time constant, s, of a first-order low-pass on the roll and pitch that take gravity off the forward
     # acceleration (not in the paper; 0: each sample's attitude, as the paper). Beside an autopilot whose EKF
     # fuses our output its attitude is not independent of us: on the IMU alone EKF3 tilts its pitch towards our
-    # speed error (SITL, issue 31: 0.29 deg std of pitch on level ground; in a camera outage our speed 1.1 m/s
-    # slow after 12 s where the accelerometer alone was 0.05 m/s off, and the rover sped to 4.8 m/s on a 3 m/s
-    # mission). The rover profiles set 30 s (that flight's pitch std 0.29 -> 0.035 deg); the accel-bias
-    # state takes the slow rest, such as a grade the low-pass has not caught up with.
+    # speed error (SITL's camera-fault flight, `pytest -m sitl -k camera_frozen`, docs/sitl.md: 0.29 deg std of
+    # pitch on level ground; in a camera outage our speed 1.1 m/s slow after 12 s where the accelerometer alone
+    # was 0.05 m/s off, and the rover sped to 4.8 m/s on a 3 m/s mission). The rover profiles set 30 s (that
+    # flight's pitch std 0.29 -> 0.035 deg); the accel-bias state takes the slow rest, such as a grade the
+    # low-pass has not caught up with.
     tilt_lowpass_s: float = field(default=0.0, metadata=bounded(0.0, 3600.0))
 
 
@@ -88,7 +89,7 @@ class AnswerParams:
 
     w_min: float = field(default=0.0, metadata=bounded(0.0, 1.0))  # answers weaker than this are not credible
     # Decoy crops per trigger (0-3: the centre crop turned by 90, 270 and 180 deg, in that order), whose in-gate
-    # answers are the scene's chance level (cvgl/service.py). Real pairs (`taco-mav bench --only real`, issue 37):
+    # answers are the scene's chance level (cvgl/service.py). Real pairs (`taco-mav bench --only real`):
     # with 3, no answer of 96 on real imagery and none on another place's map passes a margin of 4, while every
     # rendered view of the synthetic pairs does (64 of 64; docs/matchers.md).
     decoys: int = field(default=0, metadata=bounded(0, 3))
@@ -188,9 +189,9 @@ class LocaliserParams:
     # the map's georeferencing 1-sigma per axis, m: taco+ then carries the map's offset as two filter states
     # (profile map.georef_sigma_m; 0: the map is exact, as in the paper)
     map_georef_sigma_m: float = 0.0
-    # taco+ (issue 7): None = paper mode
+    # taco+ (not in the paper: docs/taco_plus.md): None = paper mode
     plus: PlusParams | None = None
-    # real GNSS while it is honest, and the spoofing/jamming guard (issue 14)
+    # real GNSS while it is honest, and the spoofing/jamming guard (not in the paper)
     gnss: GnssParams = GnssParams()
     # the wheel encoders (profile wheels: when enabled; taco+ fuses their speed); None: no wheels
     wheels: WheelParams | None = None

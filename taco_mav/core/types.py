@@ -122,7 +122,7 @@ def horizontal_sigma(cov: np.ndarray) -> float:
 
 @dataclass(frozen=True, slots=True)
 class GnssFix:
-    """One real GNSS reading for the Localiser (issue 14). t: autopilot seconds; xy: position, ENU metres from
+    """One real GNSS reading for `Localiser.add_gnss`. t: autopilot seconds; xy: position, ENU metres from
     the origin (UTM grid); vel_en: ground velocity (east, north) m/s, or None when the receiver gave none;
     sigma_h_m: 1-sigma horizontal position accuracy, metres (h_acc, or HDOP x UERE); sigma_v_mps: 1-sigma
     speed accuracy, m/s (v_acc, or a default)."""

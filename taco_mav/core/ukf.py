@@ -8,12 +8,12 @@ sigma point's weight is about -1e6, and once P is large (minutes without a fix) 
 cancellation loses positive definiteness. After every step P is symmetrised and, if needed, repaired to the
 nearest positive-definite matrix (eigenvalue floor), so Cholesky in the next predict never fails.
 
-Speed (issue 18): predict and the updates run as compiled kernels (`ukf_kernels`, numba; through `kernels`,
+Speed: predict and the updates run as compiled kernels (`ukf_kernels`, numba; through `kernels`,
 which loads them compiled ahead of time, without numba, when `ukf_aot` built them) that do exactly the
 operations of filterpy's predict and of `joseph_update_reference`, bit for bit; the filter keeps x and P as
 plain arrays. The sigma-point weights are filterpy's `MerweScaledSigmaPoints` weights, computed here by the same
 arithmetic (`merwe_weights`): importing filterpy.kalman loads scipy.stats, about 55 MB a companion computer's
-daemon never otherwise uses (issue 31); tests/test_ukf_kernels.py holds the filter to filterpy bit for bit.
+daemon never otherwise uses (docs/companion.md); tests/test_ukf_kernels.py holds the filter to filterpy bit for bit.
 """
 
 from __future__ import annotations

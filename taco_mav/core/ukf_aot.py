@@ -1,5 +1,5 @@
 """The UKF kernels of `ukf_kernels` compiled ahead of time (numba.pycc) into an extension module that loads
-without numba (issue 31: what the live daemon loads that it never uses is not loaded).
+without numba, so the live daemon loads nothing it never uses (its memory: docs/companion.md).
 
 Why: the kernels loaded through numba's JIT cost the daemon about 130 MB of its peak resident set (numba's
 typing registries and LLVM, libllvmlite's 70 MB of code pages, scipy.linalg), for about 1 MB of machine code.

@@ -1,4 +1,4 @@
-"""Compiled (numba) kernels for the planar UKF's per-frame predict and linear updates (issue 18, part 3).
+"""Compiled (numba) kernels for the planar UKF's per-frame predict and linear updates.
 
 Why compiled: a 3- to 6-state filter is microseconds of arithmetic, but through filterpy and small numpy calls
 each predict cost ~100 us of Python overhead (sigma points, a Python loop over the residuals, a dozen tiny array

@@ -1,4 +1,4 @@
-"""Real-GNSS guard (issue 14): is a receiver's reading fit to fuse? Spoofing and jamming detection, pure maths.
+"""Real-GNSS guard (not in the paper): is a receiver's reading fit to fuse? Spoofing and jamming detection, pure maths.
 
 Once the filter fuses a slowly dragged receiver it follows it and its innovations stay small, so the guard
 tests each reading against predictions the receiver has not pulled: *shadows* (gnss_shadow.py), the filter's
@@ -46,7 +46,7 @@ _RECENT_S = 10.0  # readings kept for camera fixes answered this late
 @lru_cache(maxsize=512)
 def window_threshold(n: int, alpha: float) -> float:
     """Mean-NIS threshold for n readings of a 2-dof innovation: chi2.ppf(1 - alpha, 2 n) / n, without
-    scipy.special (a live daemon's memory, issue 31; `taco_mav.core.chi2`)."""
+    scipy.special, which would cost a live daemon memory (`taco_mav.core.chi2`)."""
     return chi2_isf_even(2 * n, alpha) / n
 
 

@@ -1,4 +1,4 @@
-"""Real GNSS and its spoofing/jamming guard (issue 14, not in the paper): the one definition of the parameters,
+"""Real GNSS and its spoofing/jamming guard (not in the paper): the one definition of the parameters,
 their defaults and where each comes from. A profile's `gnss:` section loads into it; core/gnss/guard.py and
 core/gnss/fusion.py read it. Lengths metres, angles radians, times seconds."""
 
@@ -13,7 +13,7 @@ __all__ = ["GnssParams"]
 
 @dataclass(frozen=True)
 class GnssParams:
-    """Real GNSS while it is honest, and the spoofing/jamming guard (issue 14, not in the paper: it takes one
+    """Real GNSS while it is honest, and the spoofing/jamming guard (not in the paper: it takes one
     GNSS reading at start-up). Both estimators take `Localiser.add_gnss`: taco+ fuses position, speed and course
     (calibrating speed error, accelerometer and compass bias), paper mode re-anchors on it. The guard tests each
     reading against the filter's state `reference_lag_s` earlier carried forward by IMU dead reckoning alone
@@ -25,7 +25,7 @@ class GnssParams:
     # Measurements. A receiver's h_acc below 0.5 m is taken as 0.5 (an RTK fix would otherwise pin the filter).
     sigma_h_min_m: float = field(default=0.5, metadata=bounded(0.0, open_lo=True))
     sigma_v_min_mps: float = field(default=0.1, metadata=bounded(0.0, open_lo=True))  # floor on vel_acc
-    # Speed and course are fused above this ground speed (course is noise when standing; 1 m/s, issue 14).
+    # Speed and course are fused above this ground speed (course is noise when standing; 1 m/s).
     min_speed_mps: float = field(default=1.0, metadata=bounded(0.0))
     # Course as a heading measurement: 1-sigma = max(this, vel_acc / speed); 0.03 rad covers a ground vehicle's
     # side slip in ordinary turns and the antenna's lever arm.
@@ -81,17 +81,17 @@ class GnssParams:
     jump_gate: float = field(default=9.0, metadata=bounded(0.0, open_lo=True))
     gap_s: float = field(default=2.0, metadata=bounded(0.0, open_lo=True))  # no reading this long: receiver lost
     # A rejected receiver is used again after every test has passed, with the drift and velocity statistics
-    # below suspect_gate (2 dof, 95 %), for reaccept_s (issue 14: "agrees again for a sustained period").
+    # below suspect_gate (2 dof, 95 %), for reaccept_s: it must agree again for a sustained period.
     reaccept_s: float = field(default=10.0, metadata=bounded(0.0))
     suspect_gate: float = field(default=5.99, metadata=bounded(0.0, open_lo=True))
     # Camera fixes cross-check the receiver: one every camera_interval_s while it is healthy, one after
     # camera_check_s when the guard is suspicious; camera_disagree_n fixes in a row beyond camera_gate (2 dof,
     # 99.9 %) of their combined covariance (camera, the readings within camera_match_s averaged, the receiver's
     # bias) reject the receiver, and the last one's distance from the readings floors the reported accuracy
-    # (GnssGuard.camera_floor_m). 5 s (was 20): a 0.2 m/s drag then stays within 2 sigma 99-100 % of the time
-    # (20 s: 44-79 %, issue 31) and honest readings' reports cover their bias (1.3 m reported at 1.8 m RMS
-    # before; 2.0 m now, 100 % within 2 sigma). Costs no more than the trigger without GNSS, which asks about
-    # every 4.6 s in the companion bench (0.095 core, docs/companion.md).
+    # (GnssGuard.camera_floor_m). At 5 s a 0.2 m/s drag stays within 2 sigma 99-100 % of the time (at 20 s
+    # 44-79 %), and honest readings' reports cover their bias of 1.8 m RMS (2.0 m reported, 100 % within 2 sigma;
+    # at 20 s 1.3 m): tests/test_localiser_gnss.py's drag too slow for the shadow tests. Costs no more than the
+    # trigger without GNSS, which asks about every 4.6 s in the companion bench (0.095 core, docs/companion.md).
     camera_interval_s: float = field(default=5.0, metadata=bounded(0.0))
     camera_check_s: float = field(default=3.0, metadata=bounded(0.0))
     camera_gate: float = field(default=13.82, metadata=bounded(0.0, open_lo=True))

@@ -1,4 +1,4 @@
-"""Shadows for the GNSS guard (issue 14): IMU-only dead reckoning that neither GNSS nor camera fixes touch, and
+"""Shadows for the GNSS guard (guard.py): IMU-only dead reckoning that neither GNSS nor camera fixes touch, and
 the filter's state at an earlier frame carried forward by it. Pure maths.
 
 `DeadReckoner` integrates the forward acceleration to a raw speed (bias and all) along the compass heading, and

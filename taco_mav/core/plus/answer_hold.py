@@ -1,4 +1,4 @@
-"""taco+'s bookkeeping of answers that were not simply applied (issues 7, 17, 19): answers held until a second one
+"""taco+'s bookkeeping of answers that were not simply applied (not in the paper): answers held until a second one
 agrees (a jump the IMU track does not allow, a recovery candidate), failed triggers (loss of lock, the widened
 uncertainty, rejections that agree and so widen the reported accuracy) and the settling of lock after an
 applied fix. A part of taco+ (estimator.py), acting on the Localiser's timeline.

@@ -1,4 +1,4 @@
-"""taco+'s use of the camera's speed (issue 19): the ground-plane motion between two frames
+"""taco+'s use of the camera's speed (not in the paper): the ground-plane motion between two frames
 (`cvgl.ground_motion`, measured by the daemon's motion loop) as a measurement of the speed error, and the
 receiver's ground speed checked against it (`speed_check`). A part of taco+ (estimator.py), acting on the filter
 of the Localiser it serves.

@@ -1,4 +1,4 @@
-"""The closed-loop safety guard (taco+, issue 19): the estimate cross-checked against the IMU alone.
+"""The closed-loop safety guard (taco+, not in the paper): the estimate cross-checked against the IMU alone.
 
 An autopilot steers by what we send; an estimate that has lost the vehicle's motion while reporting a small
 1-sigma makes it run away. Two independent accounts of the motion since the last accepted camera fix are

@@ -1,4 +1,4 @@
-"""Loss-of-lock detection and recovery for taco+ (issue 7).
+"""Loss-of-lock detection and recovery for taco+ (not in the paper).
 
 States: LOCKED (normal fixes), LOST (the estimate may be further off than the capture radius: search a
 hexagonal grid sized by the inflated uncertainty), CONFIRMING (a relocalisation was applied; its jump stays

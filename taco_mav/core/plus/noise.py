@@ -1,4 +1,4 @@
-"""taco+'s noise model (issue 7, beyond the paper; issue 18): the process noise from the IMU's error growth
+"""taco+'s noise model (beyond the paper): the process noise from the IMU's error growth
 instead of the paper's sigma_fwd >= 1 m per frame, and what the accepted fixes teach about the noise.
 
 - Process noise: a small position random walk plus a distance-proportional term, with the forward-speed error
@@ -7,7 +7,7 @@ instead of the paper's sigma_fwd >= 1 m per frame, and what the accepted fixes t
   (x[5] = beta, rad: the compass reads theta + beta), a first-order Gauss-Markov process.
 - Adaptive fix noise (`FixNoiseScale`): the paper's w -> sigma mapping scaled by what the innovations of
   accepted fixes say the matcher's real accuracy is.
-- The reported accuracy (`VarianceFactor`, issue 18): the filter's covariance times the a-posteriori variance
+- The reported accuracy (`VarianceFactor`): the filter's covariance times the a-posteriori variance
   factor of the accepted fixes, so the h_acc sent covers the error as a 1-sigma should.
 
 All lengths metres, angles radians, times seconds; world ENU.

@@ -1,4 +1,4 @@
-"""taco+'s parameters (estimator: taco+; issues 7, 17, 18, 19; not in the paper): the one definition, its
+"""taco+'s parameters (estimator: taco+; not in the paper): the one definition, its
 defaults and where each comes from. A profile's `plus:` section loads into it (config/loading.py); the core's
 taco+ parts read it (core/plus/: mode.py, noise.py, lock.py, ...). Lengths metres, angles radians, times
 seconds, rates per second or per metre travelled."""
@@ -14,7 +14,7 @@ __all__ = ["PlusParams"]
 
 @dataclass(frozen=True)
 class PlusParams:
-    """taco+ (estimator: taco+; issue 7, not in the paper). Defaults were chosen on the synthetic worlds and
+    """taco+ (estimator: taco+; not in the paper). Defaults were chosen on the synthetic worlds and
     checked on KITTI 04/05/07/09 (docs/taco_plus.md); every value is per second or per metre travelled."""
 
     # Process noise from the IMU's error growth (replaces Sec. III-F's sigma_fwd >= 1 m per frame).
@@ -58,7 +58,7 @@ class PlusParams:
     # 1-sigma forward-acceleration error (m/s^2; a MEMS AHRS's 0.3 deg of pitch is 0.05) plus the bias
     # state's, integrated over the time since, 3 sigma, plus zupt_speed_max_mps. Also the IMU-only track's.
     imu_accel_sigma_mps2: float = field(default=0.05, metadata=bounded(0.0))
-    # Speed from the camera (issue 19, not in the paper): ground-plane motion between two frames 0.3 s apart,
+    # Speed from the camera (not in the paper): ground-plane motion between two frames 0.3 s apart,
     # every 0.5 s (daemon/motion.py), as a speed measurement; camera_speed_scale_sigma: its 1-sigma scale error
     # (a 3 cm error in a 1 m mount height is 3 %), beside the correlation's own. Needs a camera.
     camera_speed: bool = True
@@ -66,7 +66,7 @@ class PlusParams:
     # a measurement moving sideways more than this (m) plus 30 % of its forward motion is refused: a wheeled
     # vehicle barely slips, so it is a heading change the compass got wrong (SITL: an AHRS settling at boot)
     camera_lateral_max_m: float = field(default=0.15, metadata=bounded(0.0))
-    # Closed-loop safety guard (issue 19, core/plus/imu_check.py): the estimate against the IMU-only track since the
+    # Closed-loop safety guard (core/plus/imu_check.py): the estimate against the IMU-only track since the
     # last accepted fix; a disagreement beyond guard_k combined sigmas (and guard_floor_m) keeps the reported
     # variance at least the disagreement squared and holds zero-velocity updates off; guard_gate_misses
     # consecutive innovation-gate rejections widen the position uncertainty by half the disagreement, when they
@@ -87,7 +87,7 @@ class PlusParams:
     # can place; misses are not fixes, so they do not count in fixes/km. Rejected confident answers are not
     # retried sooner: asked again from nearly the same place, a chance peak repeats and looks like evidence.
     trigger_retry_s: float = field(default=0.0, metadata=bounded(0.0))
-    # Distance trigger (issue 18): also a fix once this many metres were driven since the last accepted one, so the
+    # Distance trigger: also a fix once this many metres were driven since the last accepted one, so the
     # fixes are spread along the road rather than bunched where the covariance grows (0: off); a failed query is
     # retried after trigger_retry_m (a miss is not counted in fixes/km, so it is not budget).
     trigger_distance_m: float = field(default=0.0, metadata=bounded(0.0))
@@ -97,7 +97,7 @@ class PlusParams:
     # precise GNSS): such a fix teaches the offset. The first at once, then one every map_trigger_m metres.
     map_trigger_ratio: float = field(default=0.5, metadata=bounded(0.0))
     map_trigger_m: float = field(default=3.0, metadata=bounded(0.0))
-    # Deferred weak answers (issue 18): while the filter is healthy (locked, the safety guard quiet, its prior
+    # Deferred weak answers: while the filter is healthy (locked, the safety guard quiet, its prior
     # 1-sigma below trigger_sigma_m), a consensus answer weaker than defer_w is not consumed; the query is asked
     # again defer_retry_m further on, at most defer_max times in a row (then the answer is taken as it is). The
     # filter's prior keeps a process-noise margin (3-5x the true error on KITTI), so it takes a weak answer
@@ -118,8 +118,8 @@ class PlusParams:
     # the gate for an answer that no other crop of the trigger agrees with (consensus support 1), 2 dof, 95 %
     chi2_gate_single: float = field(default=5.99, metadata=bounded(0.0, open_lo=True))
     consensus_radius_m: float = field(default=3.0, metadata=bounded(0.0))
-    # The cluster mean weights each agreeing answer by w^this: 1 as in issue 7; 2 is inverse-variance weighting under
-    # the filter's own w -> sigma mapping (sigma ~ 1/w, Sec. III-F), the consistent choice (issue 18).
+    # The cluster mean weights each agreeing answer by w^this: 1 weights by w; 2 is inverse-variance weighting under
+    # the filter's own w -> sigma mapping (sigma ~ 1/w, Sec. III-F), the consistent choice.
     consensus_weight_power: float = field(default=1.0, metadata=bounded(0.0))
     w_min: float = field(default=0.2, metadata=bounded(0.0, 1.0))  # weaker answers count as misses
     # Adaptive fix noise: the paper's w -> sigma mapping (Sec. III-F) times a scale learnt from the innovations of
@@ -137,7 +137,7 @@ class PlusParams:
     # error shape); for a matcher whose errors are round (the classical one on 3-D streets, docs/matchers.md).
     # taco+ only: paper mode keeps the paper's (its own ablation is ukf.anisotropic).
     fix_isotropic: bool = False
-    # Reported accuracy (issue 18): the filter's position covariance times the a-posteriori variance factor of the
+    # Reported accuracy: the filter's position covariance times the a-posteriori variance factor of the
     # accepted fixes (mean NIS / 2 over report_window fixes, clipped to [report_factor_min, report_factor_max]).
     # The filter keeps its process-noise margin (it tracks better with it); what it reports is made honest (while
     # locked and while the safety guard agrees; otherwise the filter's own covariance is reported).
@@ -163,10 +163,10 @@ class PlusParams:
     recover_interval_s: float = field(default=0.5, metadata=bounded(0.0))  # also the least spacing of triggers
     recover_w_min: float = field(default=0.5, metadata=bounded(0.0, 1.0))
     confirm_fixes: int = field(default=3, metadata=bounded(0))
-    # Held jumps (3-D world, issue 17): the innovation gate is on P + R, and R of a weak match (low w) is large,
+    # Held jumps (3-D world): the innovation gate is on P + R, and R of a weak match (low w) is large,
     # so a wrong match 15-30 m off with w 0.3-0.6 passed it while the IMU track was good to 1 m, and the true
     # fixes after it were then gated out. An answer that passed the chi-square gate (which still comes first: a
-    # confident run of liars is refused until lock is lost, as before) but moves the estimate further than
+    # confident run of liars is refused until lock is lost) but moves the estimate further than
     # jump_confirm_k sqrt(lambda_max(P) + jump_confirm_floor_m^2) (the prior alone, i.e. the IMU track's own
     # uncertainty, with the fix's error floor beside it) is held ("unconfirmed", a failed trigger) and a verify
     # query is asked at once; 0 disables. 3-D worlds seed 3 / 4, taco+: ATE 127 / 45 m -> 1.8 / 1.4 m with the
@@ -192,7 +192,7 @@ class PlusParams:
     # them all within confirm_agree_m (at least 3 answers, the speed error at most this, m/s; 0: off). Lock is
     # mostly lost through a bad fix that left the speed (and the accelerometer bias) wrong, and then the error,
     # and so each true answer's correction, grows by metres per second: pairwise agreement within a few metres
-    # never comes (docs/taco_plus.md, stop 27: cross-area answers that go together by place).
+    # never comes (docs/taco_plus.md, "Answers that go together by place": cross-area answers).
     confirm_speed_error_mps: float = field(default=3.0, metadata=bounded(0.0))
     # confirm_answers for a held jump while not lost; 0: never (loss of lock and the recovery grid decide). 0 as
     # answers 0.5 s apart share their view: 3-D seed 3 had three in a row 18-21 m off that 3 relocalised onto

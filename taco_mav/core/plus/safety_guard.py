@@ -1,4 +1,4 @@
-"""taco+'s closed-loop safety guard (issue 19): the estimate against the IMU-only track since the last accepted fix
+"""taco+'s closed-loop safety guard: the estimate against the IMU-only track since the last accepted fix
 (`imu_check.UnaidedTrack`); on disagreement the reported variance covers it, zero-velocity updates are held off
 and a speed one took away is given back. A part of taco+ (estimator.py), acting on the Localiser's timeline.
 

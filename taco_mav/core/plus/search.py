@@ -1,4 +1,4 @@
-"""taco+'s trigger and search (issue 7, beyond the paper; issue 18): where to look and which answer to take.
+"""taco+'s trigger and search (beyond the paper): where to look and which answer to take.
 
 - A covariance trigger: ask for a fix when the filter's own 1-sigma horizontal uncertainty reaches
   `trigger_sigma_m` (or `trigger_time_s` passed while moving); the search cross is centred on the current
@@ -22,7 +22,7 @@ from taco_mav.core.plus.params import PlusParams
 
 
 def defer_answer(w: float, deferred: int, healthy: bool, sigma_h: float, since_fix_m: float, p: PlusParams) -> bool:
-    """Issue 18: leave a weak answer unused and ask again? Yes when its consensus weight w is below defer_w, fewer
+    """Leave a weak answer unused and ask again? Yes when its consensus weight w is below defer_w, fewer
     than defer_max answers were deferred in a row (`deferred`), the filter is healthy (locked, the safety guard
     quiet) with its prior 1-sigma sigma_h (m) below trigger_sigma_m, and fewer than trigger_distance_m +
     defer_span_m metres were driven since the last accepted fix (since_fix_m; defer_span_m 0: no limit)."""

@@ -1,4 +1,4 @@
-"""GNSS ground speed against the camera's (issues 14 and 19): a spoofer that drags the position *and* the
+"""GNSS ground speed against the camera's (for the GNSS guard): a spoofer that drags the position *and* the
 velocity along the direction of travel is invisible to a check against dead reckoning whose own speed error
 grows as fast as the drag, but not to the camera, which measures the ground moving past.
 

@@ -1,4 +1,4 @@
-"""Stationary detection for zero-velocity updates (taco+, issues 7 and 19).
+"""Stationary detection for zero-velocity updates (taco+, not in the paper).
 
 The IMU alone cannot tell a stop from a smooth cruise: at constant velocity a rover on smooth asphalt (and
 SITL's rover, whose IMU has no vibration) measures exactly what a parked one does. The detector therefore only

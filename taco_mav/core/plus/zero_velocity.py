@@ -1,10 +1,10 @@
-"""taco+'s zero-velocity updates (issues 7 and 19): when a frame is taken as a stop, and the update it makes.
+"""taco+'s zero-velocity updates (not in the paper): when a frame is taken as a stop, and the update it makes.
 
 The IMU alone cannot tell a smooth cruise from a stop (`stationary.StationaryDetector` only says "IMU still"), so
 a frame is a stop only when the IMU is still and the speed is one the filter cannot tell from zero. The speed the
 IMU may have lost since the speed was last observed (a fix, a stop, a camera speed) is what its accelerometer
-error integrates to, not the filter's speed random walk (issue 19: with q_speed 0.5 a smooth 3 m/s cruise fell
-inside 3 sigma within seconds and the update pinned it to zero). Never while the autopilot drives or the camera
+error integrates to, not the filter's speed random walk (with q_speed 0.5 a smooth 3 m/s cruise falls inside
+3 sigma within seconds and the update would pin it to zero). Never while the autopilot drives or the camera
 sees the ground move, nor while the safety guard holds updates off. A part of taco+ (estimator.py).
 
 Speeds m/s, times autopilot seconds.
