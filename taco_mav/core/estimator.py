@@ -23,7 +23,7 @@ from taco_mav.core.types import Estimate, GnssFix, GnssOutcome, ImuSample, Match
 from taco_mav.core.ukf import PlanarUkf
 from taco_mav.core.wheel_odometry import WheelMotion
 
-__all__ = ["Aids", "Estimator", "FilterModel", "FixPolicy", "GnssPolicy", "Plan", "Report", "Trigger"]
+__all__ = ["Aids", "EstimatorParts", "FilterModel", "FixPolicy", "GnssPolicy", "Plan", "Report", "Trigger"]
 
 Plan = tuple[str, float, np.ndarray]  # a trigger's (reason, forward bias m, body offsets (K, 2) m)
 
@@ -119,7 +119,7 @@ class Aids(Protocol):
 
 
 @dataclass(frozen=True)
-class Estimator:
+class EstimatorParts:
     """An estimator mode's parts (see the module docstring); report and aids None where the mode has none."""
 
     filter: FilterModel

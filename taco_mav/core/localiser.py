@@ -24,7 +24,7 @@ from typing import Sequence
 
 from taco_mav.core.frames import FixOutcome
 from taco_mav.core.gnss.fusion import GnssFusion
-from taco_mav.core.estimator import Estimator
+from taco_mav.core.estimator import EstimatorParts
 from taco_mav.core.paper import make_paper
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus.estimator import make_plus
@@ -50,7 +50,7 @@ class Localiser:
         self.timeline = Timeline(params, t0, x, y, heading, speed, heading_offset, self.record)
         self.desk = QueryDesk(t0, params.trigger.query_timeout_s, params.latency.apply_on_arrival, self.record)
         self.gnss = GnssFusion(self.timeline, params.gnss)
-        self.estimator: Estimator = (make_paper(self.timeline, self.desk, params) if params.plus is None
+        self.estimator: EstimatorParts = (make_paper(self.timeline, self.desk, params) if params.plus is None
                                      else make_plus(self.timeline, self.desk, self.gnss, params, params.plus))
         self.gnss.serve(self.estimator.gnss, self.estimator.aids)
         self.timeline.start(self.estimator.filter.make_ukf(x, y, heading), self.estimator.filter.predict)

@@ -16,7 +16,7 @@ import numpy as np
 
 from taco_mav.core.answer_check import credible, supported
 from taco_mav.core.error_model import ErrorTerms
-from taco_mav.core.estimator import Estimator, Plan
+from taco_mav.core.estimator import EstimatorParts, Plan
 from taco_mav.core.frames import FixOutcome, FixReason, GnssMeasurement, Tick
 from taco_mav.core.gate import passes_yaw_gate, yaw_residual
 from taco_mav.core.params import LocaliserParams
@@ -36,9 +36,9 @@ from taco_mav.core.ukf import PlanarUkf, process_noise, process_sigmas, weight_s
 _NO_MATCH = MatchResult(np.eye(2), np.zeros(2), -1.0)  # a placeholder that never wins best_candidate
 
 
-def make_paper(timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> Estimator:
+def make_paper(timeline: Timeline, desk: QueryDesk, params: LocaliserParams) -> EstimatorParts:
     """The paper's estimator on the Localiser's `timeline` and `desk`."""
-    return Estimator(PaperFilter(params, timeline.frame_dt), PaperTrigger(timeline, desk, params),
+    return EstimatorParts(PaperFilter(params, timeline.frame_dt), PaperTrigger(timeline, desk, params),
                      BestCandidate(timeline, desk, params), ReAnchor(timeline, params), report=None, aids=None)
 
 

@@ -14,7 +14,7 @@ amount is kept on the frame (a `SpeedFeedback` correction) so a replay after a l
 
 from __future__ import annotations
 
-from taco_mav.core.estimator import Estimator
+from taco_mav.core.estimator import EstimatorParts
 from taco_mav.core.gnss.fusion import GnssFusion
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus.aiding import PlusAids
@@ -38,7 +38,7 @@ __all__ = ["make_plus"]
 
 
 def make_plus(timeline: Timeline, desk: QueryDesk, gnss: GnssFusion, params: LocaliserParams,
-              q: PlusParams) -> Estimator:
+              q: PlusParams) -> EstimatorParts:
     """taco+'s estimator on the Localiser's `timeline`, `desk` and `gnss`, with q the taco+ parameters
     (params.plus)."""
     t0 = timeline.t
@@ -54,7 +54,7 @@ def make_plus(timeline: Timeline, desk: QueryDesk, gnss: GnssFusion, params: Loc
     progress = Progress()
     aids = PlusAids(timeline, gnss, params, q, lock=lock, progress=progress, guard=guard, zero=zero, scale=scale,
                     answers=answers)
-    return Estimator(
+    return EstimatorParts(
         filter=PlusFilter(params, q),
         trigger=PlusTrigger(timeline, desk, gnss, params, q, lock=lock, progress=progress, answers=answers,
                             zero=zero, wheels=aids.wheels),
