@@ -23,7 +23,7 @@ from taco_mav.mavlink import encoders
 log = logging.getLogger(__name__)
 
 
-# Origin sources, best first (issue 14): what the user gave, the EKF origin, home, a real GNSS with a 3D fix.
+# Origin sources, best first: what the user gave, the EKF origin, home, a real GNSS with a 3D fix.
 ORIGIN_RANK = {"--origin": 0, "GPS_GLOBAL_ORIGIN": 1, "HOME_POSITION": 2}
 GNSS_RANK = 3  # any real GNSS instance ("GPS_RAW_INT", "GPS2_RAW")
 NO_ORIGIN_TEXTS = ("no origin: set EKF origin/home in the GCS", "or --origin LAT,LON[,ALT] or a GNSS 3D fix")
@@ -33,7 +33,7 @@ MAX_START_CARRY_S = 2.0  # a start fix is carried at its speed and course to the
 # within 0.5 s), so a daemon restarted mid-mission never starts at the origin.
 START_POSITION_WAIT_S = 1.5
 # 1-sigma of a start taken from the autopilot's position: its EKF's error while we fed it (1.0-1.5 m RMS on
-# ArduPilot Rover SITL, issue 28) plus what it dead-reckoned while no daemon ran (a restart: seconds at up to
+# ArduPilot Rover SITL, docs/results.md) plus what it dead-reckoned while no daemon ran (a restart: seconds at up to
 # 3 m/s). A camera fix brings it down within one trigger.
 AUTOPILOT_START_SIGMA_M = 3.0
 MOVING_MPS = 0.5  # an autopilot position at the origin starts there only when the vehicle is slower than this

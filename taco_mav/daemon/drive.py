@@ -1,5 +1,5 @@
 """Whether the autopilot drives the vehicle: taco+ vetoes zero-velocity updates while it does, and keeps asking
-the camera at apparent stops (a smooth cruise looks still to the IMU, issue 19).
+the camera at apparent stops (a smooth cruise looks still to the IMU).
 
 ArduPilot: armed (HEARTBEAT) with a throttle output (VFR_HUD.throttle, %) of at least DRIVE_THROTTLE_MIN_PCT.
 PX4: its VFR_HUD.throttle comes from `vehicle_thrust_setpoint`, which PX4's rover modules never publish (always

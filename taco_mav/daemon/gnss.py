@@ -1,4 +1,4 @@
-"""Real GNSS on the autopilot's side (issue 14): which GPS instance is a real receiver, its readings as
+"""Real GNSS on the autopilot's side: which GPS instance is a real receiver, its readings as
 `GnssFix` measurements for the Localiser, and the events a hand-over produces. Pure bookkeeping and
 conversion (no sockets); the daemon feeds it messages and writes what it returns.
 

@@ -115,7 +115,7 @@ class Inputs:
 
     def on_vfr_hud(self, msg: Any, received: float) -> None:
         """The autopilot's throttle output (%): whether it drives (`drive.DriveCommand`) vetoes taco+'s
-        zero-velocity updates (a smooth cruise looks still to the IMU, issue 19)."""
+        zero-velocity updates (a smooth cruise looks still to the IMU)."""
         throttle = getattr(msg, "throttle", None)
         if not isinstance(throttle, int) or not -100 <= throttle <= 100:
             self.decoders.reject("VFR_HUD", "range")

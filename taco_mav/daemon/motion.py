@@ -1,4 +1,4 @@
-"""The daemon's camera-speed pipeline (issue 19): ground-plane motion between two camera frames a fraction of
+"""The daemon's camera-speed pipeline: ground-plane motion between two camera frames a fraction of
 a second apart (`cvgl.ground_motion.GroundMotion`) as a speed measurement for taco+.
 
 Threads: `tick` runs on the daemon loop thread (it asks for a measurement every `interval_s` of autopilot time

@@ -3,7 +3,7 @@ steady real GNSS; `OriginChooser` decides which and when), asking the autopilot 
 real GNSS readings (GPS_RAW_INT, GPS2_RAW), which give the start speed and course and are then fused by the
 Localiser while they are honest (`GnssTracker`, the guard in the core), and the autopilot's own position
 (GLOBAL_POSITION_INT): with no real GNSS, a daemon started beside a vehicle that already has one (a restart
-mid-mission) starts there, with an honest 1-sigma, never at the origin (issue 30)."""
+mid-mission) starts there, with an honest 1-sigma, never at the origin."""
 
 from __future__ import annotations
 

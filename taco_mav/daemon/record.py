@@ -1,4 +1,4 @@
-"""Recording what the daemon's camera saw (issue 30), so a drive made with GNSS on can be replayed and scored
+"""Recording what the daemon's camera saw, so a drive made with GNSS on can be replayed and scored
 offline, or played again to a newer daemon: `taco-mav run --log-dir DIR --record` keeps frames in the session
 folder beside mav.tlog, SESSION/frames/:
 

@@ -1,4 +1,4 @@
-"""Shadow mode (`taco-mav run --shadow`, issue 30): how far off would taco_mav be without GNSS, measured while
+"""Shadow mode (`taco-mav run --shadow`): how far off would taco_mav be without GNSS, measured while
 a real receiver is still honest.
 
 A twin of the Localiser runs beside the one whose estimate goes to the autopilot: made with it at every

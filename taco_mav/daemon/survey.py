@@ -15,7 +15,7 @@ the answer gave no position or no receiver was there to compare). A stretch's ve
 Why these numbers (not in the paper): the rover profiles ask the camera every 5 s (2.5 s after a weak answer); at
 3 m/s, with a third of the answers accepted, a fix lands every 30-45 m, what the drift model needs to stay near a
 metre (docs/taco_plus.md); a camera whose accepted fixes are wrong one time in twenty must not be relied on
-(issue 37's precision target, 0.95). Pure bookkeeping; no I/O.
+(the precision target, 0.95). Pure bookkeeping; no I/O.
 """
 
 from __future__ import annotations
