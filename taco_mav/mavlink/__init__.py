@@ -10,5 +10,5 @@ import os
 # MAVLink 2 everywhere (GPS_INPUT.yaw is a MAVLink 2 extension); set before pymavlink is first imported.
 os.environ.setdefault("MAVLINK20", "1")
 # pymavlink loads its default dialect ("all") when mavutil is first imported, though every connection made here
-# asks for ardupilotmega: 12 MB of a companion's memory for nothing (issue 31). A user's own setting is kept.
+# asks for ardupilotmega: 12 MB of a companion's memory for nothing (docs/companion.md). A user's own setting is kept.
 os.environ.setdefault("MAVLINK_DIALECT", "ardupilotmega")

@@ -239,7 +239,8 @@ class Link:
         """Close the link (and the tlog). A connected TCP link first stays open `linger_s` seconds after the
         last send: ArduPilot SITL's TCP port leaves bytes that arrived with the peer's close unprocessed until
         the next client connects, so a daemon's last GPS_INPUT, applied seconds later by a restarted one's
-        connect, threw EKF3 10 m back to where the rover had been (measured, issue 30)."""
+        connect, threw EKF3 10 m back to where the rover had been (measured in tests/test_sitl.py's daemon restarted
+        mid-mission)."""
         if isinstance(self.conn, mavutil.mavtcp) and getattr(self.conn, "port", None) is not None and linger_s > 0:
             time.sleep(linger_s)
         try:
