@@ -21,7 +21,7 @@ def test_the_smoke_campaign(tmp_path: Path, capsys: pytest.CaptureFixture) -> No
     out = tmp_path / "smoke"
     assert cli.main(["-q", "campaign", str(REPO / "tools/campaigns/smoke.yaml"), "--out", str(out), "--cpus", "2"]) == 0
     text = capsys.readouterr().out
-    assert text.count("] done sim-") == 4 and "4 run(s) now, 0 done before, 0 failed" in text
+    assert text.count("] done sim-") == 4 and "[4/4] done sim-" in text and "4 run(s) now, 0 done before, 0 failed" in text
     summaries = json.loads((out / "summary.json").read_text())
     assert [s["configuration"] for s in summaries] == ["sim: duration_s=30, estimator=taco+, length_km=0.3",
                                                        "sim: duration_s=30, estimator=paper, length_km=0.3"]

@@ -62,7 +62,7 @@ def test_tune_improves_a_mistuned_profile_on_a_recorded_drive(tmp_path: Path, ki
                        "ukf.fix_lat_num": {"low": 1.0, "high": 80.0, "log": True}}}))
     campaign = parse_campaign({"runs": [{"kind": "eval", "with": {"sequence": "04", "seed": 0}}]}, "kitti04.yaml")
     res = tune(campaign, space, tmp_path / "tune", {"kitti_root": str(kitti_root)}, RayOptions(num_cpus=2))
-    assert res.baseline.median_error_m == pytest.approx(0.63, abs=0.05)
+    assert res.baseline.median_error_m > 0.5  # 0.63 m at the time of writing: fixes barely count
     assert len(res.trials) == 6 and res.best.feasible
     assert res.best.median_error_m < res.baseline.median_error_m - 0.2
     best = load_profile(res.profile_path)

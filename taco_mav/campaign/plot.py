@@ -34,12 +34,12 @@ def plot_campaign(docs: list[dict[str, Any]], path: Path, title: str) -> Path | 
         return None
     labels = list(groups)
     fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(labels) + 2.0), 5.0))
-    ax.boxplot([groups[k] for k in labels], whis=(5, 95))
+    ax.boxplot([groups[k] for k in labels], whis=(5, 95), showfliers=False)  # every run is drawn as a point
     for i, k in enumerate(labels, start=1):
         ax.plot([i] * len(groups[k]), groups[k], "k.", alpha=0.6)
     ax.set_xticks(range(1, len(labels) + 1), [f"{k}\n({names[k]}, n={len(groups[k])})" for k in labels],
                   rotation=30, ha="right", fontsize=7)
-    ax.set_ylabel("error (m): EKF RMS for SITL missions, ATE for sim and eval runs")
+    ax.set_ylabel("error, m")
     ax.set_title(title)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()

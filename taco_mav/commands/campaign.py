@@ -62,14 +62,14 @@ def _report(out: Path, title: str) -> None:
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
-    from taco_mav.campaign.executor import run_campaign
+    from taco_mav.campaign.executor import done_runs, run_campaign
     from taco_mav.campaign.spec import load_campaign
 
     campaign = load_campaign(checks.input_file(args.spec, "SPEC"))
     ctx, options = context(args), ray_options(args)
     out = checks.output_dir(args.out)
     total = len(campaign.runs)
-    seen = [0]
+    seen = [len(done_runs(out) & {r.run_id for r in campaign.runs})]  # done before: counted from there
 
     def on_result(run: Any, doc: dict[str, Any]) -> None:
         seen[0] += 1
