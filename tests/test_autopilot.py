@@ -44,6 +44,7 @@ def _param(name: str, value: float):
 def test_the_wheels_profile_asks_for_wheel_distance_and_reads_the_wheel_positions() -> None:
     ap, link = _link(load_profile("ardupilot_rover_wheels"))
     assert ap.requester.rates["WHEEL_DISTANCE"] == 20.0
+    assert next(iter(ap.requester.rates)) == "WHEEL_DISTANCE"  # first: its fallback sets its group's rate (EXTRA1)
     for now in range(0, 40):  # the stream requests go one at a time; the parameter reads beside them
         ap.tick(float(now) * 0.5)
     asked = {m.param_id for m in link.sent if m.get_type() == "PARAM_REQUEST_READ"}

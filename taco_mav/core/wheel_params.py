@@ -4,9 +4,10 @@ from. A profile's `wheels:` section loads into it (config/profile.py); the daemo
 it. Without `enabled` nothing reads it and nothing changes. Lengths metres, speeds m/s, times autopilot seconds.
 
 Where the numbers come from: ArduPilot Rover reads its encoders at 50 Hz (`update_wheel_encoder` in its scheduler)
-and sends `WHEEL_DISTANCE` (cumulative metres per wheel, `time_usec` the send time in whole milliseconds) in its
-EXTRA3 stream group or at the rate asked for; its SITL quadrature encoders (`WENC_TYPE 10`) count ticks of the true
-speed and yaw rate at `WENC_CPR` per turn of `WENC_RADIUS` (docs/ardupilot.md).
+and sends `WHEEL_DISTANCE` (cumulative metres per wheel, `time_usec` the send time in whole milliseconds) at its
+stream group's rate (EXTRA1 at 03494bd, which refuses SET_MESSAGE_INTERVAL for it); its SITL quadrature encoders
+(`WENC_TYPE 10`) count ticks of the true speed and yaw rate at `WENC_CPR` per turn of `WENC_RADIUS`
+(docs/ardupilot.md).
 """
 
 from __future__ import annotations

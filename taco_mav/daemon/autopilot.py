@@ -139,8 +139,9 @@ class AutopilotLink:
                  "GLOBAL_POSITION_INT": 2.0}  # the autopilot's own position: where a restarted daemon starts
         if self.wants_pose():
             rates["HIL_STATE_QUATERNION" if autopilot == MAV_AUTOPILOT_PX4 else "SIMSTATE"] = p.link.imu_rate_hz
-        if p.wheels.enabled:
-            rates["WHEEL_DISTANCE"] = p.wheels.rate_hz
+        if p.wheels.enabled:  # first: ArduPilot refuses its interval, and the fallback sets the rate of its whole
+            # stream group (EXTRA1, with ATTITUDE and SIMSTATE), whose own intervals asked for after it then hold
+            rates = {"WHEEL_DISTANCE": p.wheels.rate_hz, **rates}
         rates.update(GNSS_RATES)  # GNSS stays read after the origin: it is fused while it is honest
         assert self.link is not None
         self.requester = StreamRequester(self.link.send, self.link.mav, rates)

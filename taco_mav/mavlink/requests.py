@@ -28,7 +28,9 @@ _STREAM_OF = {
     "GPS2_RAW": m.MAV_DATA_STREAM_EXTENDED_STATUS, "SIMSTATE": m.MAV_DATA_STREAM_EXTRA1,
     "VFR_HUD": m.MAV_DATA_STREAM_EXTRA2, "SERVO_OUTPUT_RAW": m.MAV_DATA_STREAM_RC_CHANNELS,
     "GLOBAL_POSITION_INT": m.MAV_DATA_STREAM_POSITION,
-    "WHEEL_DISTANCE": m.MAV_DATA_STREAM_EXTRA3,  # Rover's EXTRA3 group (GCS_Mavlink.cpp)
+    # Rover's EXTRA1 group at ArduPilot 03494bd (measured: it comes with ATTITUDE; SET_MESSAGE_INTERVAL and
+    # MAV_CMD_REQUEST_MESSAGE are refused there, "No ap_message for mavlink id (9000)"); older Rovers: EXTRA3
+    "WHEEL_DISTANCE": m.MAV_DATA_STREAM_EXTRA1,
     # sent on change and on MAV_CMD_REQUEST_MESSAGE only: no stream group to fall back to
     "HOME_POSITION": None, "GPS_GLOBAL_ORIGIN": None,
 }
