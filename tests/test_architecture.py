@@ -50,7 +50,7 @@ LIVE_MUST_NOT_REACH = ("taco_mav.datasets", "taco_mav.sim", "taco_mav.evaluation
 # classes). Empty: the last one (camera.WorldSource building datasets/synthetic's renderers) went when WorldSource
 # moved to datasets/synthetic/world_camera.py and `open_camera` took the `world:` scheme from a registry.
 KNOWN_UPWARD: tuple[tuple[str, str, str], ...] = ()
-SPLIT_MODULES_MAX_LINES = 350  # config/ and daemon/ hold one idea a module, ~300 lines at most (issues 16, 29)
+SPLIT_MODULES_MAX_LINES = 350  # config/ and daemon/ hold one idea a module, ~300 lines at most
 
 
 @dataclass(frozen=True)
@@ -247,9 +247,9 @@ def _dataclass_fields() -> dict[str, frozenset[str]]:
 
 
 def test_no_two_parameter_classes_mirror_each_other() -> None:
-    """Every parameter is defined once (issue 29): no two parameter dataclasses (named *Params or *Config) of 4
-    or more fields share 80 % of them (config/plus.py's PlusConfig and core/plus.py's PlusParams once shared all
-    77, with five defaults apart)."""
+    """Every parameter is defined once: no two parameter dataclasses (named *Params or *Config) of 4 or more
+    fields share 80 % of them (a config-side mirror of PlusParams, all 77 fields with five defaults apart, is what
+    it catches)."""
     classes = sorted((k, v) for k, v in _dataclass_fields().items() if k.endswith(("Params", "Config")))
     twins = [(a, b) for i, (a, fa) in enumerate(classes) for b, fb in classes[i + 1:]
              if min(len(fa), len(fb)) >= 4 and len(fa & fb) >= 0.8 * min(len(fa), len(fb))]

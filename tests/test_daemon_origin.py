@@ -1,4 +1,4 @@
-"""Where the daemon's origin comes from (issue 14), end to end: the simulator (ArduPilot's GPS1/GPS2 model) and
+"""Where the daemon's origin comes from, end to end: the simulator (ArduPilot's GPS1/GPS2 model) and
 the real daemon in one process over UDP on 127.0.0.1, the daemon on the simulator's clock (as tests/test_live.py).
 
 - no --origin, no GNSS at all: the origin is the EKF origin (GPS_GLOBAL_ORIGIN), and the run meets the rate
@@ -224,7 +224,7 @@ def test_gnss_fused_then_lost(world: Path, tmp_path: Path) -> None:
     g = daemon.gnss.summary()
     assert g["outcome_fused"] >= 60 and g["state"] == "lost"
     _assert_rate(seq)
-    # the estimator's own figure (issue 14 asks <= 0.6 m after 60 s of GNSS) is the core's to pin down; here
+    # the estimator's own figure (required: <= 0.6 m after 60 s of GNSS) is the core's to pin down; here
     # the denied span only has to stay at the no-GNSS run's level
     assert seq["denied_from_s"] == 40.0 and seq["ate_denied_m"] <= 1.0 and seq["ekf_gate_pass_fraction"] >= 0.95
 
@@ -246,8 +246,8 @@ def test_spoofing_reported(world: Path, tmp_path: Path) -> None:
 def test_restart_mid_drive_starts_where_the_autopilot_is(world: Path, tmp_path: Path) -> None:
     """A daemon stopped mid-drive and started again with the same command (no --origin, no GNSS, the EKF origin
     set): the new one starts where the autopilot's own position (GLOBAL_POSITION_INT) puts the vehicle, moving,
-    with a 1-sigma of at least 3 m, never at the origin (issue 30: it started at the origin, at rest, and
-    reported TRACKING 45 m from the rover); no report of either run is more than 5 m from the truth."""
+    with a 1-sigma of at least 3 m, never at the origin (a daemon that starts at the origin, at rest, reports
+    TRACKING 45 m from the rover); no report of either run is more than 5 m from the truth."""
     port = free_udp_port()
     sim = Simulator(world, f"udpout:127.0.0.1:{port}", speed=5.0, lockstep=True, wait_companion_s=10.0, drain_s=0.3,
                     deny_after_s=0.0)

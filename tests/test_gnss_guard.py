@@ -1,4 +1,4 @@
-"""The GNSS guard (issue 14) on its own: dead-reckoning shadows, the window and drift statistics, a drag caught in
+"""The GNSS guard on its own: dead-reckoning shadows, the window and drift statistics, a drag caught in
 seconds, honest noise accepted, re-acceptance only after sustained agreement, the camera cross-check.
 
 The "filter" here is a stand-in that follows the receiver (the worst case for a guard: a drag pulls it at
@@ -160,7 +160,7 @@ class Run:
 
 def test_honest_receiver_is_accepted():
     """1.5 m readings (white 0.75 m, Gauss-Markov bias 1.3 m, tau 60 s) against shadows: >= 99 % accepted on
-    each of 4 seeds over 5 minutes (issue 14 asks >= 95 %); the window mean NIS stays under its limit."""
+    each of 4 seeds over 5 minutes (required: >= 95 %); the window mean NIS stays under its limit."""
     d = Drive(300.0, speed=lambda t: 8.0 + 2.0 * math.sin(t / 20.0))
     for seed in range(4):
         r = Run(d, seed=seed).all()

@@ -1,4 +1,4 @@
-"""taco+ with the camera's ground-plane motion as a speed measurement (issue 19): on a SITL-like drive whose
+"""taco+ with the camera's ground-plane motion as a speed measurement: on a SITL-like drive whose
 IMU cannot tell the cruise from a stop, and on the rover profile's fast-drifting speed between fixes."""
 
 import dataclasses

@@ -1,4 +1,4 @@
-"""taco+ (issue 7) end to end on simulated drives: accuracy at fewer fixes, late fixes, the innovation gate,
+"""taco+ end to end on simulated drives: accuracy at fewer fixes, late fixes, the innovation gate,
 loss of lock and recovery, bias observability, zero-velocity updates."""
 
 import dataclasses
@@ -201,7 +201,7 @@ def test_no_fix_run_grows_uncertainty_and_declares_loss_honestly():
 
 
 def test_distance_trigger_spreads_the_fixes_along_the_road_and_retries_a_miss_sooner():
-    """Issue 18: with trigger_distance_m the accepted fixes come every 40 m driven (the covariance trigger out of
+    """With trigger_distance_m the accepted fixes come every 40 m driven (the covariance trigger out of
     the way), and a query that failed is asked again after trigger_retry_m, not after another 40 m."""
     d = _drive()
     params = dataclasses.replace(PLUS, plus=dataclasses.replace(PLUS.plus, trigger_distance_m=40.0,
@@ -259,7 +259,7 @@ def test_time_trigger_asks_again_sooner_after_an_answer_without_a_fix():
 
 
 def test_weak_answers_are_deferred_while_healthy_and_taken_after_defer_max():
-    """Issue 18: with defer_w, a consensus answer weaker than it is not used while the filter is healthy (reason
+    """With defer_w, a consensus answer weaker than it is not used while the filter is healthy (reason
     'deferred': neither a fix nor a failure), the query is asked again defer_retry_m on, and after defer_max
     deferrals in a row the weak answer is taken; with defer_w 0 it is taken at once."""
     d = _drive()

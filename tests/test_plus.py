@@ -93,7 +93,7 @@ def test_consensus_prefers_the_agreeing_cluster_over_the_single_heaviest():
     assert c is not None and c.index == 0 and c.support == 3
     assert np.allclose(c.xy, (w[:3, None] * xy[:3]).sum(0) / w[:3].sum())
     assert consensus(xy, w, np.zeros(5, bool), 3.0) is None
-    # issue 18: power 2 is the inverse-variance mean under sigma ~ 1/w (weights w^2), same cluster and weight
+    # power 2 is the inverse-variance mean under sigma ~ 1/w (weights w^2), same cluster and weight
     c2 = consensus(xy, w, usable, 3.0, power=2.0)
     assert c2.index == c.index and c2.support == c.support and c2.weight == c.weight
     assert np.allclose(c2.xy, (w[:3, None] ** 2 * xy[:3]).sum(0) / (w[:3] ** 2).sum())
@@ -173,7 +173,7 @@ def test_six_state_filter_separates_a_compass_bias_from_the_heading():
 
 
 def test_variance_factor_is_half_the_mean_nis_of_the_fixes():
-    """Issue 18: 2-D innovations drawn from k (P + R) give a mean NIS of 2 k against P + R, so the factor that
+    """2-D innovations drawn from k (P + R) give a mean NIS of 2 k against P + R, so the factor that
     makes the reported covariance honest is k; it starts at 1 and is clipped to [lo, hi]."""
     rng = np.random.default_rng(5)
     S = np.diag([1.0, 4.0])  # P + R the filter believes, m^2
@@ -207,7 +207,7 @@ def test_variance_factor_ignores_a_non_finite_nis_and_resets_to_the_prior():
 
 
 def test_defer_answer_only_a_weak_answer_while_healthy_and_within_its_limits():
-    """Issue 18: a weak answer is deferred only below defer_w, while healthy (locked, guard quiet, prior 1-sigma
+    """A weak answer is deferred only below defer_w, while healthy (locked, guard quiet, prior 1-sigma
     below trigger_sigma_m), fewer than defer_max times in a row and within trigger_distance_m + defer_span_m."""
     p = PlusParams(defer_w=0.6, defer_max=2, trigger_sigma_m=3.0, trigger_distance_m=40.0, defer_span_m=20.0)
     ok = dict(deferred=0, healthy=True, sigma_h=1.0, since_fix_m=45.0, p=p)

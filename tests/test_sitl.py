@@ -1,4 +1,4 @@
-"""Closed loop on a real autopilot (issue 19): ArduPilot Rover SITL steered by what taco-mav sends.
+"""Closed loop on a real autopilot (docs/sitl.md): ArduPilot Rover SITL steered by what taco-mav sends.
 
 Runs only where `ARDUROVER` names a SITL binary (build it with ../shared/tools/build_ardupilot_sitl.sh); each
 mission takes about 4 minutes of real time. taco_mav.closedloop.ardupilot is the harness (`taco-mav mission
@@ -39,9 +39,9 @@ def test_handover_mission_completes_after_gnss_is_lost(tmp_path):
 
 
 def test_square_mission_on_a_3d_world_with_the_shipped_profile(tmp_path):
-    """Issue 31: the camera sees a 3-D world (facades, trees, cars, another day's aerial map georeferenced ~1 m
+    """The camera sees a 3-D world (facades, trees, cars, another day's aerial map georeferenced ~1 m
     off; the square kept clear of buildings), the daemon runs the shipped `ardupilot_rover` profile as a user
-    would. Before its map-error model: 2 fixes accepted, lock lost by count of weak answers, EKF failsafe 70 s into
+    would. Without its map-error model: 2 fixes accepted, lock lost by count of weak answers, EKF failsafe 70 s into
     the mission. With it: EKF3 0.96-1.31 m RMS over three runs (docs/sitl.md; on cores loaded by other missions
     the daemon can fall behind and the bounds fail: one run at load average 6-8, 8.7 m)."""
     spec = MissionSpec(setup="solo", realism="3d")
@@ -67,9 +67,10 @@ def test_paper_mode_never_runs_away(tmp_path):
 
 @pytest.mark.nightly
 def test_daemon_restarted_mid_mission_keeps_the_rover_on_track(tmp_path):
-    """Issue 30: the daemon stopped with SIGTERM 60 s into AUTO (solo, no --origin, EKF origin from the ground
+    """The daemon stopped with SIGTERM 60 s into AUTO (solo, no --origin, EKF origin from the ground
     station) and started again with the same command starts where the autopilot's position puts the rover; the
-    mission completes with EKF3 within 3 m of the truth throughout (before: 58 m, a runaway at 7.6 m/s)."""
+    mission completes with EKF3 within 3 m of the truth throughout (a daemon that started again at the origin: 58 m,
+    a runaway at 7.6 m/s)."""
     spec = MissionSpec(setup="solo", restart_after_s=60.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
     _check(res, spec)
@@ -90,7 +91,7 @@ def _fault_check(res: dict, spec: MissionSpec, speed: bool = True) -> None:
 
 @pytest.mark.nightly
 def test_camera_frozen_then_black_mid_mission(tmp_path):
-    """Issue 31: the camera's frames frozen for 10 s, then black for 10 s, 40 s into AUTO. Frozen and black frames
+    """The camera's frames frozen for 10 s, then black for 10 s, 40 s into AUTO. Frozen and black frames
     are refused (no fix from a place the rover has left, no speed from a picture that does not move); on the IMU
     alone the rover profile's honest accuracy soon says the position is lost, our fix type drops and the
     autopilot's EKF fails safe (HOLD): a safe stop, reported, where the mission does not complete. Never a runaway:
@@ -99,7 +100,9 @@ def test_camera_frozen_then_black_mid_mission(tmp_path):
     leans towards our speed, out of it."""
     spec = MissionSpec(setup="solo", fault="camera", fault_after_s=40.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
-    _fault_check(res, spec)  # the true speed under 1.5 x WP_SPEED among the rest (4.8-5.3 m/s before issue 31's fix)
+    # the true speed under 1.5 x WP_SPEED among the rest (4.8-5.3 m/s without the hung-picture refusal and the tilt
+    # low-pass)
+    _fault_check(res, spec)
     fixes, motion = res["daemon_fixes"], res["daemon_camera_motion"]
     assert fixes.get("frozen_frame", 0) >= 1 and fixes.get("blank_frame", 0) >= 1, fixes
     assert motion.get("frozen_frame", 0) >= 1, motion  # the camera-speed loop refuses them too
@@ -107,7 +110,7 @@ def test_camera_frozen_then_black_mid_mission(tmp_path):
 
 @pytest.mark.nightly
 def test_matcher_worker_stalled_mid_mission(tmp_path):
-    """Issue 31: the matcher's worker blocks for 30 s; after matcher_timeout_s the daemon abandons it, starts a
+    """The matcher's worker blocks for 30 s; after matcher_timeout_s the daemon abandons it, starts a
     fresh worker and the mission completes."""
     spec = MissionSpec(setup="solo", laps=1, fault="stall", fault_after_s=30.0, timeout_s=200.0)
     res = run_mission(Path(ARDUROVER), tmp_path, spec)
@@ -118,7 +121,7 @@ def test_matcher_worker_stalled_mid_mission(tmp_path):
 
 @pytest.mark.nightly
 def test_link_to_the_autopilot_cut_for_5_s(tmp_path):
-    """Issue 31: every byte between the daemon and the autopilot dropped for 5 s: the daemon notices the silence
+    """Every byte between the daemon and the autopilot dropped for 5 s: the daemon notices the silence
     and carries its estimate over the gap with the uncertainty a 5 s gap at 3 m/s deserves (10 m: lock lost, fix
     type dropped, so EKF3 fails safe and holds), relocalises and tracks again; or the mission completes. Never a
     runaway, and the reports cover the error."""
@@ -130,7 +133,7 @@ def test_link_to_the_autopilot_cut_for_5_s(tmp_path):
 
 @pytest.mark.nightly
 def test_receiver_glitches_while_it_steers(tmp_path):
-    """Issue 31 (hand-over set-up, SITL's GNSS is GPS1 and steers the rover): the receiver jumps 20 m for 30 s
+    """Hand-over set-up (SITL's GNSS is GPS1 and steers the rover): the receiver jumps 20 m for 30 s
     (SITL's GPS glitch). Our guard rejects it at once and our GPS2 stays on camera and IMU with an accuracy that
     covers its error; the autopilot, which steers by GPS1, fails safe or completes, never a runaway."""
     spec = MissionSpec(setup="handover", profile="ardupilot_rover_gps2", laps=1, gnss_off_after_s=1e6,
@@ -142,9 +145,9 @@ def test_receiver_glitches_while_it_steers(tmp_path):
 
 @pytest.mark.nightly
 def test_receiver_dragged_slowly_while_it_steers(tmp_path):
-    """Issue 31 (hand-over set-up): SITL's GNSS, GPS1, steering the rover, dragged east at 0.5 m/s for 40 s. Until
+    """Hand-over set-up: SITL's GNSS, GPS1, steering the rover, dragged east at 0.5 m/s for 40 s. Until
     the guard rejects it our GPS2 follows it, and the camera check every 5 s floors the accuracy we report at the
-    camera's distance from the readings, so the reports cover the error throughout (before the floor: 6 m off with
+    camera's distance from the readings, so the reports cover the error throughout (without the floor: 6 m off with
     about 1 m reported, 8.2 times the accuracy); the autopilot fails safe or completes, never a runaway."""
     spec = MissionSpec(setup="handover", profile="ardupilot_rover_gps2", laps=1, gnss_off_after_s=1e6,
                        fault="spoof", fault_after_s=30.0, timeout_s=200.0)
@@ -154,7 +157,7 @@ def test_receiver_dragged_slowly_while_it_steers(tmp_path):
 
 
 def _never_follows(res: dict, spec: MissionSpec) -> None:
-    """Issue 37's bound for a camera that cannot read the ground: no runaway; while the rover moves, EKF3 within
+    """The bound for a camera that cannot read the ground (docs/sitl.md): no runaway; while the rover moves, EKF3 within
     max(3 m, 2x the accuracy we report) at least 95 % of the time; completed, or stopped by the autopilot's own
     failsafe."""
     assert res.get("verdict") != "runaway_stopped", res
@@ -164,7 +167,7 @@ def _never_follows(res: dict, spec: MissionSpec) -> None:
 
 
 def test_a_camera_that_cannot_read_its_map_is_never_followed(tmp_path):
-    """Issue 37 (hand-over set-up: SITL's GNSS steers until 30 s into AUTO, then only our GPS2): the daemon's map
+    """Hand-over set-up (SITL's GNSS steers until 30 s into AUTO, then only our GPS2): the daemon's map
     is another world's (seed 11) over the same ground, so every camera answer is wrong. None is fused (weak, or
     refused by the innovation gate while GNSS holds the track, or no better than chance once lock is lost); the
     ground station is told the camera is at chance before the rover moves, and once GNSS goes our accuracy says
