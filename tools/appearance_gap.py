@@ -119,8 +119,8 @@ def crop_figures(s: dict[str, np.ndarray]) -> dict[str, float]:
 
 
 def matcher_profile(prof: Profile, variant: str) -> Profile:
-    """The profile with the classical matcher as `variant`: "lcn" (the matcher before issue 17: grey-level LCN,
-    no masks) or "orientation" (gradient orientation with the vertical-structure mask)."""
+    """The profile with the classical matcher as `variant`: "lcn" (grey-level LCN, no masks) or
+    "orientation" (gradient orientation with the vertical-structure mask)."""
     prof = replace_in(prof, "matcher", "classical")
     prof = replace_in(prof, "classical.descriptor", variant)
     return replace_in(prof, "classical.mask_vertical", variant != "lcn")

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Closed loop on a real autopilot: ArduPilot Rover SITL driven by taco-mav (issue 19).
+"""Closed loop on a real autopilot: ArduPilot Rover SITL driven by taco-mav (docs/sitl.md).
 
 The command line of `taco_mav.closedloop.ardupilot` (the harness: what it starts, drives and scores is in its
 docstring); `taco-mav mission --autopilot ardupilot` is the same mission from the package's own command.
