@@ -147,7 +147,7 @@ class StreamRequester:
             self._fallback(r, target_system, target_component, f"refused (result {msg.result})")
 
 
-# Asked for beside the daemon's inputs (issue 14): the second GPS instance and the offered origins.
+# Asked for beside the daemon's inputs, for real GNSS: the second GPS instance and the offered origins.
 GNSS_RATES = {"GPS2_RAW": 2.0, "HOME_POSITION": 0.5, "GPS_GLOBAL_ORIGIN": 0.5}
 
 
