@@ -1,5 +1,5 @@
-"""Camera faults on cue for the simulated `world:` camera (simulation only): what a closed-loop test (tools/
-sitl_mission.py --fault) does to the rover's camera while the mission runs.
+"""Camera faults on cue for the simulated `world:` camera (simulation only): what a closed-loop mission
+(`taco_mav.closedloop.faults`, `taco-mav mission --fault`) does to the rover's camera while the mission runs.
 
     --camera world:DIR?faults=FILE
 
