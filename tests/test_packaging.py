@@ -29,8 +29,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic",
-           "synthetic_3d", "synthetic_rover")
+           "synthetic_3d", "synthetic_rover", "ardupilot_rover_wheels")
 PX4_PARAMS = ("px4_rover_solo", "px4_rover_handover")
+AP_PARMS = ("ardupilot_rover_wheels",)
 
 pytestmark = pytest.mark.slow
 
@@ -118,6 +119,8 @@ def test_wheel_ships_profiles_and_no_test_tooling(wheel: Path) -> None:
         assert f"taco_mav/vehicle_profiles/{name}.yaml" in names
     for name in PX4_PARAMS:  # the PX4 parameter files a user loads in QGroundControl, beside the profiles
         assert f"taco_mav/vehicle_profiles/{name}.params" in names
+    for name in AP_PARMS:  # the ArduPilot parameter files a user loads in a ground station
+        assert f"taco_mav/vehicle_profiles/{name}.parm" in names
     assert not [n for n in names if n.startswith(("tests/", "tools/")) or "/fuzz" in n], "test tooling in the wheel"
     # the closed-loop harness (`taco-mav mission`) and the appearance-gap maker are package modules, tools/ their
     # command lines
@@ -206,6 +209,8 @@ def test_sdist_ships_profiles(source: Path, tmp_path: Path) -> None:
         assert any(n.endswith(f"/taco_mav/vehicle_profiles/{name}.yaml") for n in names), name
     for name in PX4_PARAMS:
         assert any(n.endswith(f"/taco_mav/vehicle_profiles/{name}.params") for n in names), name
+    for name in AP_PARMS:
+        assert any(n.endswith(f"/taco_mav/vehicle_profiles/{name}.parm") for n in names), name
 
 
 def test_own_profiles_folder_is_looked_up_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
