@@ -6,7 +6,6 @@ fg2 module itself imports torch only when a matcher is built, so asking a class 
 
 from __future__ import annotations
 
-import importlib
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import MATCHERS, Profile, frd_fwd_left
 from taco_mav.cvgl.base import Matcher, TruthFn
@@ -14,19 +13,22 @@ from taco_mav.errors import ConfigError, MatcherError
 
 __all__ = ["MATCHERS", "make_matcher", "needs_true_pose"]
 
-# profile name -> (module, class) of each matcher, imported when asked for
-_CLASSES: dict[str, tuple[str, str]] = {"classical": ("taco_mav.cvgl.classical", "ClassicalMatcher"),
-                                        "emulator": ("taco_mav.cvgl.emulator", "EmulatorMatcher"),
-                                        "fg2": ("taco_mav.cvgl.fg2.adapter", "Fg2Matcher")}
-
 
 def _matcher_class(name: str) -> type[Matcher]:
-    """The class of matcher `name` (ConfigError for a name not in MATCHERS)."""
-    if name not in _CLASSES:
-        raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")
-    module, cls = _CLASSES[name]
-    out: type[Matcher] = getattr(importlib.import_module(module), cls)
-    return out
+    """The class of matcher `name`, imported here (ConfigError for a name not in MATCHERS)."""
+    if name == "classical":
+        from taco_mav.cvgl.classical import ClassicalMatcher
+
+        return ClassicalMatcher
+    if name == "emulator":
+        from taco_mav.cvgl.emulator import EmulatorMatcher
+
+        return EmulatorMatcher
+    if name == "fg2":
+        from taco_mav.cvgl.fg2.adapter import Fg2Matcher
+
+        return Fg2Matcher
+    raise ConfigError(f"matcher: {name!r} is not one of {', '.join(MATCHERS)}")
 
 
 def needs_true_pose(profile: Profile, matcher: Matcher | None = None) -> bool:
@@ -43,8 +45,7 @@ def make_matcher(profile: Profile, truth: TruthFn | None = None, *, cross_area: 
     emulator's cross-area figures; camera defaults to profile.camera."""
     camera = camera or GroundCamera.from_config(profile.camera)
     name = profile.matcher
-    cls = _matcher_class(name)
-    if cls.needs_true_pose and truth is None:
+    if _matcher_class(name).needs_true_pose and truth is None:
         raise MatcherError(f"matcher {name!r} needs ground truth (it is a statistical model for simulation "
                            "and evaluation, not a localiser); use 'classical' or 'fg2' on a vehicle")
     if name == "classical":
