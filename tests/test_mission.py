@@ -120,9 +120,10 @@ def test_run_dir_beside_the_figures() -> None:
 def test_ardupilot_parameters_of_each_setup() -> None:
     solo = ardupilot.sitl_params(ardupilot.MissionSpec(wp_speed=2.0, extra_params={"WP_RADIUS": 1.5}))
     assert solo["GPS1_TYPE"] == 14 and solo["GPS2_TYPE"] == 0 and solo["WP_SPEED"] == solo["CRUISE_SPEED"] == 2.0
-    assert solo["WP_RADIUS"] == 1.5
+    assert solo["WP_RADIUS"] == 1.5 and solo["GPS1_DELAY_MS"] == ardupilot.OUR_GPS_DELAY_MS == 20.0
     hand = ardupilot.sitl_params(ardupilot.MissionSpec(setup="handover"))
     assert (hand["GPS1_TYPE"], hand["GPS2_TYPE"], hand["GPS_AUTO_SWITCH"]) == (1, 14, 4)
+    assert hand["GPS2_DELAY_MS"] == 20.0 and "GPS1_DELAY_MS" not in hand  # SITL's own receiver keeps its driver's
     with pytest.raises(ValueError, match="solo or handover"):
         ardupilot.sitl_params(ardupilot.MissionSpec(setup="gnss"))
 
