@@ -224,6 +224,36 @@ def test_camera_at_a_low_duty_while_gnss_is_healthy_and_late_fixes_replay_the_gn
     assert np.sqrt(np.mean(np.sum(window(rec, 60.0, 100.0)[:, 1:3] ** 2, axis=1))) < 2.0
 
 
+class OffsetMap:
+    """A camera that reads its map well, on a map misregistered by `offset` (ENU m): every answer is that far from
+    the truth, the same way, with the weight of a good match."""
+
+    def __init__(self, d, offset: tuple[float, float], seed: int = 0) -> None:
+        self.oracle = OracleMatcher(d, capture_radius=80.0, seed=seed)
+        self.offset = np.array(offset, dtype=float)
+
+    def answer(self, q):
+        return self.oracle.answer(q, bias_world=self.offset)
+
+
+def test_a_camera_on_a_misregistered_map_is_refuted_by_gnss_and_never_followed():
+    """Honest GNSS for 60 s, then none; the camera's answers are 25 m off the same way every time (its map
+    misregistered): the readings refute it, so it rejects none of them, none of its answers is fused before or
+    after the receiver is lost (refused as "refuted"), the Localiser says so once, and the reported accuracy
+    covers the dead-reckoned error (2 sigma)."""
+    d, samples = drive()
+    fixes = receiver(d.t, d.xy, d.theta, d.speed, seed=1, until=60.0)
+    loc, rec, outs, queries = run(d, samples, fixes, PLUS, matcher=OffsetMap(d, (-20.0, 15.0), seed=3), latency=0.5)
+    outcomes = loc.record.outcomes
+    assert used(outs) == 1.0
+    assert not any(o.accepted for o in outcomes), [(o.capture_t, o.reason) for o in outcomes if o.accepted]
+    late = [o.reason for o in outcomes if o.capture_t > 60.0]
+    assert late.count("refuted") >= 3, late
+    assert [k for _, k, _ in loc.estimator.aids.lock.events].count("camera_refuted") == 1
+    after = window(rec, 60.0, 100.0)
+    assert np.all(np.hypot(after[:, 1], after[:, 2]) <= 2.0 * after[:, 3])
+
+
 def test_real_kitti_drive_both_estimators(kitti_root):
     """KITTI 07 (OXTS at 10 Hz, real IMU): 1.5 m readings made from the OXTS truth for 60 s, then none: >= 95 %
     accepted by both estimators, and 20 s of dead reckoning after it within a few metres."""

@@ -68,6 +68,7 @@ class FixReason(enum.StrEnum):
     DEFERRED = "deferred"  # taco+: weak, and the filter can wait for a better one
     INNOVATION_GATE = "innovation_gate"  # taco+: too far from the track for its covariance
     UNCONFIRMED = "unconfirmed"  # taco+: a jump held until a second answer confirms it
+    REFUTED = "refuted"  # taco+: the GNSS readings refute the camera (gnss/guard.py `camera_refuted`)
 
 
 @dataclass(frozen=True)

@@ -289,7 +289,8 @@ class FixPipeline:
         assert self.events is not None
         for t, kind, detail in loc.take_lock_events():
             self.events.write("lock", t=t, kind=kind, detail=detail)
-            self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed", "imu_disagrees", "fixes_disagree")
+            self.status(SEV_WARNING if kind in ("lock_lost", "relock_failed", "imu_disagrees", "fixes_disagree",
+                                                       "camera_refuted")
                         else SEV_INFO, f"{kind.replace('_', ' ')} {detail}".strip(), None)
         for res in self._due(loc.t, generation):
             q = res.query

@@ -231,7 +231,8 @@ class GnssFusion:
     def on_fix_outcome(self, outcome: FixOutcome) -> None:
         """A camera fix answered: cross-check it with the GNSS readings around its capture (from `_log`)."""
         g = self.guard
-        if g is None or outcome.xy is None or outcome.reason not in (FixReason.ACCEPTED, FixReason.INNOVATION_GATE):
+        checked = (FixReason.ACCEPTED, FixReason.INNOVATION_GATE, FixReason.REFUTED)
+        if g is None or outcome.xy is None or outcome.reason not in checked:
             return
         tick = next((h for h in self.timeline.history if abs(h.t - outcome.capture_t) < 1e-6), None)
         anchor = self._anchor(self.timeline.history[-1]) if self.timeline.history else None
@@ -275,6 +276,12 @@ class GnssFusion:
     def state(self) -> str:
         """"none" (no reading yet), "ok" (in use) or "rejected" (held off by the guard)."""
         return "none" if self.guard is None else self.guard.state.value
+
+    @property
+    def camera_refuted(self) -> bool:
+        """The readings refute the camera: it never agreed with them and keeps disagreeing by the same gap
+        (`GnssGuard.camera_refuted`); False before any reading."""
+        return self.guard is not None and self.guard.camera_refuted
 
     @property
     def in_use(self) -> bool:

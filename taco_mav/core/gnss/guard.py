@@ -16,7 +16,14 @@ Five tests; any one rejects the receiver:
 3. drift: the mean position innovation of the last `drift_window_s` against its covariance, a coherent 2-dof
    test: a drag moves every innovation the same way;
 4. velocity: the same for the reading's velocity against the shadow's (a careful spoofer drags it too);
-5. camera: `camera_disagree_n` camera fixes in a row disagree with the readings around their capture.
+5. camera: `camera_disagree_n` camera fixes in a row disagree with the readings around their capture, from a
+   camera that agreed with them before. A camera that never agreed cannot reject the receiver: two absolute
+   sources that differ by a steady offset from the first look are a misregistered map or a camera that cannot
+   read it as often as a spoofer present from power-on, and only the camera has been shown wrong before (a
+   0.6 km world's map under another world's camera answers 25 m off with weights up to 1.0, every time in the
+   same direction). Such a camera is *refuted* (`camera_refuted`) once `camera_disagree_n` checks in a row
+   disagree by the same gap (within `camera_refute_agree_m`), and stays so until one of its fixes agrees with the
+   readings.
 A rejected receiver is used again only after every test has passed, with the drift and velocity statistics
 below `suspect_gate`, for `reaccept_s`; and the first reading after a rejection or a loss only if its update
 moves the estimate by at most 3 sigma of its covariance (`jump_gate`): the output never jumps further at a
@@ -165,6 +172,8 @@ class GnssGuard:
         self.rejections = 0
         self.camera_disagree = 0
         self.camera_gap: np.ndarray | None = None  # the last camera check: camera fix - readings, ENU m (2,)
+        self.camera_agreed = False  # a camera fix has agreed with the readings: its disagreement may reject them
+        self._camera_gaps: list[np.ndarray] = []  # the gaps of the disagreeing checks since the last agreement
         self.external_flag: str | None = None  # set by another check (the camera's speed), taken at the next reading
         self.last: GuardVerdict | None = None
         self._window: deque[_Reading] = deque()
@@ -287,7 +296,7 @@ class GnssGuard:
             flags.append("drift")
         if velocity > p.drift_gate:
             flags.append("velocity")
-        if self.camera_disagree >= p.camera_disagree_n:
+        if self.camera_agreed and self.camera_disagree >= p.camera_disagree_n:
             flags.append("camera")
             self.camera_disagree = 0
         if self.external_flag is not None:
@@ -336,7 +345,8 @@ class GnssGuard:
         biases; snap_c: the dead reckoner at the capture (the frame's; None: between the readings' own, which
         needs a reading after the capture: a 2 Hz receiver and a 0.25 s matcher in the daemon had none, and no
         check ever ran). Returns the NIS (None when there is nothing to compare); counts consecutive
-        disagreements (NIS > camera_gate): camera_disagree_n of them reject the receiver at its next reading."""
+        disagreements (NIS > camera_gate): camera_disagree_n of them reject the receiver at its next reading if the
+        camera agreed once before, and refute the camera if it never did (module docstring)."""
         p = self.p
         near = [r for r in self._recent if abs(r[0] - t_capture) <= p.camera_match_s]
         if snap_c is None:
@@ -348,9 +358,24 @@ class GnssGuard:
         white, bias = receiver_variances(float(np.mean([r[2] for r in near])), p)
         S = R_cam + (white / len(near) + bias) * np.eye(2)
         nis = quad(z - z_g, S)
-        self.camera_disagree = self.camera_disagree + 1 if nis > p.camera_gate else 0
         self.camera_gap = z - z_g
+        if nis > p.camera_gate:
+            self.camera_disagree += 1
+            self._camera_gaps = (self._camera_gaps + [self.camera_gap])[-p.camera_disagree_n:]
+        else:
+            self.camera_disagree = 0
+            self.camera_agreed = True
+            self._camera_gaps = []
         return nis
+
+    @property
+    def camera_refuted(self) -> bool:
+        """The camera never agreed with the readings, and its last camera_disagree_n checks disagreed by the same
+        gap (ENU m, pairwise within camera_refute_agree_m): its fixes must not be used (module docstring)."""
+        gaps = self._camera_gaps
+        return (not self.camera_agreed and len(gaps) >= self.p.camera_disagree_n
+                and all(float(np.hypot(*(a - b))) <= self.p.camera_refute_agree_m
+                        for i, a in enumerate(gaps) for b in gaps[i + 1:]))
 
     @property
     def camera_floor_m(self) -> float:

@@ -58,7 +58,7 @@ def make_plus(timeline: Timeline, desk: QueryDesk, gnss: GnssFusion, params: Loc
         filter=PlusFilter(params, q),
         trigger=PlusTrigger(timeline, desk, gnss, params, q, lock=lock, progress=progress, answers=answers,
                             zero=zero, wheels=aids.wheels),
-        fixes=PlusFixPolicy(timeline, desk, params, q, lock=lock, progress=progress, answers=answers,
+        fixes=PlusFixPolicy(timeline, desk, params, q, gnss=gnss, lock=lock, progress=progress, answers=answers,
                             fix_scale=fix_scale, report_factor=report_factor, scale=scale, zero=zero, guard=guard,
                             feedback=aids.feedback, wheels=aids.wheels),
         gnss=KalmanGnss(timeline, q, zero, guard, aids.feedback),

@@ -1,6 +1,7 @@
 """What an answer does in taco+: consensus over the crops' candidates (search.py), the answer check while lock is
 lost (answer_check.py), a weak answer deferred while the filter can wait, the chi-square innovation gate against
-the track (tighter for an uncorroborated answer), a jump held until a second answer confirms it (answer_hold.py),
+the track (tighter for an uncorroborated answer), every answer refused while the GNSS readings refute the camera
+(gnss/guard.py: it never agreed with them and keeps disagreeing by the same gap), a jump held until a second answer confirms it (answer_hold.py),
 the fix noise learnt from earlier fixes (noise.py), the camera speed's and the wheels' scale errors entering the
 filter where the fix can take it out (speed_scale.py, wheel_scale.py; the fix also teaches the wheels' scale), and the answer's rotation as a measurement of the true heading. Every
 answered trigger without an accepted fix counts towards loss of lock (lock.py).
@@ -19,6 +20,7 @@ import numpy as np
 from taco_mav.core.answer_check import credible, supported
 from taco_mav.core.frames import FixOutcome, FixReason, Tick
 from taco_mav.core.gate import yaw_residual
+from taco_mav.core.gnss.fusion import GnssFusion
 from taco_mav.core.params import LocaliserParams
 from taco_mav.core.plus.answer_hold import AnswerHold
 from taco_mav.core.plus.lock import LockMonitor, LockState
@@ -83,16 +85,18 @@ class _Innovation:
 
 class PlusFixPolicy:
     """taco+'s answers on the Localiser's `timeline` and `desk` (see the module docstring); `feedback` moves the
-    speed error into the preintegrator after a fix (`PlusAids.feedback`)."""
+    speed error into the preintegrator after a fix (`PlusAids.feedback`); `gnss` says whether its readings refute
+    the camera."""
 
     def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams, q: PlusParams, *,
-                 lock: LockMonitor, progress: Progress, answers: AnswerHold, fix_scale: FixNoiseScale,
+                 gnss: GnssFusion, lock: LockMonitor, progress: Progress, answers: AnswerHold, fix_scale: FixNoiseScale,
                  report_factor: VarianceFactor, scale: ScaleConsider, zero: ZeroVelocity, guard: SafetyGuard,
                  feedback: Callable[[Tick], None], wheels: WheelAiding | None = None) -> None:
         self.timeline, self.desk, self.p, self.q = timeline, desk, params, q
         self.lock, self.progress, self.answers, self.fix_scale = lock, progress, answers, fix_scale
         self.report_factor, self.scale, self.zero, self.guard = report_factor, scale, zero, guard
-        self._feedback, self.wheels = feedback, wheels
+        self._feedback, self.wheels, self.gnss = feedback, wheels, gnss
+        self._refuted = False  # the last answer was refused because the readings refute the camera
 
     def judge(self, answer: Answering, results: Sequence[MatchResult | None]) -> FixOutcome:
         """Consensus over the candidates, the chi-square innovation gate, held answers and the lock state machine
@@ -124,6 +128,9 @@ class PlusFixPolicy:
         else:
             gate = self.q.chi2_gate if c.support > 1 else self.q.chi2_gate_single
         figures = dict(found, sigma_fwd=inn.s_f, sigma_lat=inn.s_l, nis=inn.nis)
+        if self._refutes(inn.jump):
+            answers.failed(FixReason.REFUTED, inn.jump, odo)
+            return answer.refused(FixReason.REFUTED, **figures)
         if inn.nis > gate:
             answers.failed(FixReason.INNOVATION_GATE, inn.jump, odo,
                            inn.innov if c.weight >= self.q.guard_w_min else None)
@@ -134,6 +141,19 @@ class PlusFixPolicy:
             return answer.refused(FixReason.UNCONFIRMED, **figures)
         self._fuse(tick, z, q.heading + float(cand.psi[k]), inn, state, held)
         return answer.accepted(**figures)
+
+    def _refutes(self, jump_m: float) -> bool:
+        """Whether the GNSS readings refute the camera now (`GnssFusion.camera_refuted`); a lock note when that
+        starts (jump_m: this answer's distance from the estimate, m) and when it ends."""
+        refuted = self.gnss.camera_refuted
+        if refuted != self._refuted:
+            self._refuted = refuted
+            t = self.timeline.t
+            if refuted:
+                self.lock.note(t, "camera_refuted", f"{jump_m:.0f} m off GNSS, never agreed")
+            else:
+                self.lock.note(t, "camera_agrees", "with GNSS again")
+        return refuted
 
     def _candidates(self, q: FixQuery, results: Sequence[MatchResult | None], w: np.ndarray) -> _Candidates:
         """Every crop's fix (ENU m) and yaw residual (rad), and which are finite, pass the yaw gate, are strong
