@@ -227,10 +227,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--daemon-origin", action="store_true", help="ardupilot: the daemon gets --origin (home)")
     p.add_argument("--gcs-origin", action=argparse.BooleanOptionalAction, help="px4: the ground station sets "
                    "EKF2's origin at home (default: solo only)")
-    p.add_argument("--params-file", help="px4: QGroundControl parameter file (default: the shipped "
-                   "px4_rover_<setup>.params; '' for none)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="px4: a parameter at boot "
-                   "(repeatable)")
+    p.add_argument("--params-file", help="parameters set at boot: px4: a QGroundControl parameter file (default: the "
+                   "shipped px4_rover_<setup>.params; '' for none); ardupilot: a .parm file (a path, or one shipped "
+                   "beside the profiles: ardupilot_rover_wheels.parm), over the set-up's own")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a parameter at boot, over "
+                   "--params-file (repeatable; SITL's wheel encoders: --param WENC_TYPE=10 --param WENC2_TYPE=10)")
     _force(p, "the run folder")
     p.set_defaults(func=mission.cmd_mission)
 

@@ -47,10 +47,30 @@ def test_options_reach_the_mission() -> None:
         (2.5, {"EKF2_GPS_DELAY": 40.0}, False, "")
 
 
+def test_an_ardupilot_parm_file_and_params_reach_the_mission(tmp_path: Path) -> None:
+    """--params-file: an ArduPilot .parm (a path, or the name of one shipped beside the profiles), then each --param
+    over it; both end in the SITL defaults file the mission boots with."""
+    own = tmp_path / "rover.parm"
+    own.write_text("# mine\nWENC_TYPE,1\n\nWENC_RADIUS 0.06  # measured\n")
+    spec = mission.mission_spec(_args("--autopilot", "ardupilot", "--out", "m.json", "--params-file", str(own),
+                                      "--param", "WENC_TYPE=10"))
+    assert spec.extra_params == {"WENC_TYPE": 10.0, "WENC_RADIUS": 0.06}
+    spec = mission.mission_spec(_args("--autopilot", "ardupilot", "--out", "m.json", "--params-file",
+                                      "ardupilot_rover_wheels.parm", "--param", "WENC_TYPE=10",
+                                      "--param", "WENC2_TYPE=10"))
+    booted = ardupilot.sitl_params(spec)
+    assert (booted["WENC_TYPE"], booted["WENC2_TYPE"], booted["WENC_POS_Y"], booted["WENC2_POS_Y"]) == \
+        (10.0, 10.0, 0.15, -0.15)
+    assert booted["SERVO11_FUNCTION"] == -1 and booted["GPS1_TYPE"] == 14
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["--autopilot", "px4", "--fault", "camera"], "--fault: ardupilot only"),
     (["--autopilot", "px4", "--daemon-origin"], "--daemon-origin: ardupilot only"),
-    (["--autopilot", "ardupilot", "--param", "X=1"], "--param: px4 only"),
+    (["--autopilot", "ardupilot", "--param", "X=1", "--ardurover", "{T}/sitl", "--params-file", "{T}/none.parm"],
+     "--params-file {T}/none.parm: no such file"),
+    (["--autopilot", "ardupilot", "--ardurover", "{T}/sitl", "--params-file", "{T}/bad.parm"],
+     "{T}/bad.parm:3: 'WENC_CPR': expected NAME VALUE"),
     (["--autopilot", "ardupilot", "--no-gcs-origin"], "--[no-]gcs-origin: px4 only"),
     (["--autopilot", "ardupilot", "--setup", "gnss"], "--setup gnss"),
     (["--autopilot", "ardupilot", "--fault", "glitch"], "--fault glitch: needs --setup handover"),
@@ -71,6 +91,7 @@ def test_bad_options_are_refused_before_any_work(tmp_path: Path, capsys: pytest.
     monkeypatch.delenv("PX4_SITL", raising=False)
     (tmp_path / "sitl").write_text("a binary")
     (tmp_path / "done").mkdir()
+    (tmp_path / "bad.parm").write_text("# encoders\nWENC_TYPE 1\nWENC_CPR\n")
     (tmp_path / "done" / "result.json").write_text("{}")
     argv = [a.replace("{T}", str(tmp_path)) for a in argv]
     code = cli.main(["mission", "--out", str(tmp_path / "m.json"), *argv])

@@ -36,6 +36,7 @@ from taco_mav.closedloop.gcs import Gcs, M, arm, runaway, set_ekf_origin, wait_e
 from taco_mav.closedloop.processes import log_tail, stop_group
 from taco_mav.closedloop.scoring import score, sent_score, shadow_score
 from taco_mav.closedloop.world import mission_world
+from taco_mav.errors import ConfigError
 
 HOME = (-35.363261, 149.165230, 584.0, 0.0)  # SITL's default (CMAC), lat, lon, alt m, heading deg
 ROVER_AUTO, ROVER_HOLD = 10, 4
@@ -100,6 +101,25 @@ def free_instance() -> int:
         if ok:
             return inst
     raise RuntimeError("no free SITL instance ports")
+
+
+def read_parm_file(path: Path) -> dict[str, float]:
+    """NAME -> value from an ArduPilot parameter file (.parm, as Mission Planner and MAVProxy save and load it:
+    one `NAME VALUE` or `NAME,VALUE` per line, `#` comments, blank lines). A line that is neither is an error that
+    names the file and the line."""
+    out: dict[str, float] = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        cols = text.replace(",", " ").split()
+        try:
+            if len(cols) != 2:
+                raise ValueError
+            out[cols[0]] = float(cols[1])
+        except ValueError:
+            raise ConfigError(f"{path}:{n}: {line.strip()!r}: expected NAME VALUE (an ArduPilot .parm line)") from None
+    return out
 
 
 def sitl_params(spec: MissionSpec) -> dict[str, float]:

@@ -26,8 +26,7 @@ BINARY = {"ardupilot": ("ardurover", "ARDUROVER"), "px4": ("px4", "PX4_SITL")}  
 ONLY = {"fault": ("--fault", "ardupilot", None), "fault_after": ("--fault-after", "ardupilot", None),
         "map_seed": ("--map-seed", "ardupilot", None), "daemon_origin": ("--daemon-origin", "ardupilot", False),
         "ardurover": ("--ardurover", "ardupilot", None), "px4": ("--px4", "px4", None),
-        "gcs_origin": ("--[no-]gcs-origin", "px4", None), "params_file": ("--params-file", "px4", None),
-        "param": ("--param", "px4", [])}
+        "gcs_origin": ("--[no-]gcs-origin", "px4", None)}
 # the figures printed (result.json and --out hold them all)
 NOT_PRINTED = ("spec", "statustext", "px4_statustext", "modes", "px4_params")
 
@@ -60,6 +59,17 @@ def _params(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _parm_file(text: str) -> Path:
+    """--params-file for ArduPilot: the path, or a file of that name shipped beside the profiles
+    (ardupilot_rover_wheels.parm)."""
+    from taco_mav.config import PROFILE_DIR
+
+    path = Path(text)
+    if not path.exists() and path.name == text and (PROFILE_DIR / text).is_file():
+        return PROFILE_DIR / text
+    return checks.input_file(path, "--params-file")
+
+
 def check_options(args: argparse.Namespace) -> None:
     """Usage errors before any work: options of the other autopilot, a set-up it has not, numbers out of range,
     a fault without the set-up it needs."""
@@ -90,12 +100,14 @@ def mission_spec(args: argparse.Namespace) -> Any:
               "estimator": args.estimator, "timeout_s": args.timeout, "restart_after_s": args.restart_after,
               "realism": args.realism, "world_seed": args.world_seed, "keep_clear": not args.through}
     if args.autopilot == "ardupilot":
-        from taco_mav.closedloop.ardupilot import MissionSpec, default_profile
+        from taco_mav.closedloop.ardupilot import MissionSpec, default_profile, read_parm_file
 
+        extra = read_parm_file(_parm_file(args.params_file)) if args.params_file else {}
+        extra.update(_params(args.param))  # --param after the file: it wins
         return MissionSpec(**common, wp_speed=args.speed, profile=args.profile or default_profile(args.setup),
                            daemon_origin=args.daemon_origin, daemon_args=tuple(args.daemon_arg), fault=args.fault,
                            fault_after_s=60.0 if args.fault_after is None else args.fault_after,
-                           map_seed=args.map_seed)
+                           map_seed=args.map_seed, extra_params=extra)
     from taco_mav.closedloop.px4 import Px4MissionSpec, default_profile
 
     return Px4MissionSpec(**common, cruise_speed=args.speed, profile=args.profile or default_profile(args.setup),
