@@ -96,7 +96,7 @@ def test_param_check_reads_our_instance() -> None:
     sent = []
     pc = ParamCheck(sent.append, TX, gps_id=1)
     pc.tick(0.0, 1, 1)
-    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2"]
+    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS_TYPE", "GPS2_TYPE", "GPS_TYPE2"]
     assert pc.on_message(param_value("GPS1_TYPE", 1.0)) is None
     assert pc.is_mav(1) is False and pc.is_mav(2) is None and not pc.done
     text = pc.on_message(param_value("GPS2_TYPE", 1.0))
@@ -118,8 +118,8 @@ def test_param_check_reads_the_antenna_offset() -> None:
     sent = []
     pc = ParamCheck(sent.append, TX, gps_id=1, antenna_frd_m=(0.5, 0.0, -0.3))
     pc.tick(0.0, 1, 1)
-    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2", "GPS2_POS_X", "GPS2_POS_Y",
-                                          "GPS2_POS_Z", "GPS_POS2_X", "GPS_POS2_Y", "GPS_POS2_Z"]
+    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS_TYPE", "GPS2_TYPE", "GPS_TYPE2", "GPS2_POS_X", "GPS_POS2_X",
+                                          "GPS2_POS_Y", "GPS_POS2_Y", "GPS2_POS_Z", "GPS_POS2_Z"]
     for name, value in (("GPS1_TYPE", 1.0), ("GPS2_TYPE", 14.0), ("GPS2_POS_X", 0.52), ("GPS2_POS_Y", -0.04)):
         assert pc.on_message(param_value(name, value)) is None
     assert not pc.done  # Z still missing

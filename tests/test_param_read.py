@@ -31,6 +31,22 @@ def test_asks_for_what_is_missing_until_answered() -> None:
 def test_gives_up_after_its_tries() -> None:
     sent = []
     r = ParamRead(sent.append, apm.MAVLink(None), ("WENC_POS_Y",), retry_s=1.0, tries=2)
-    for now in (0.0, 1.0, 2.0, 3.0):
-        r.tick(now, 1, 1)
+    gave_up = [r.tick(now, 1, 1) for now in (0.0, 1.0, 2.0, 3.0)]
+    assert gave_up == [[], ["WENC_POS_Y"], [], []]  # the last round says what stays unanswered, once
     assert len(sent) == 2 and r.done and not r.complete
+
+
+def test_a_value_under_two_names_counts_the_first_answer() -> None:
+    """A value renamed by a firmware release (GPS_TYPE before ArduPilot 4.6, GPS1_TYPE after): both names are
+    asked for until one answers; the value is kept under the first name, with the name that answered. A
+    non-finite answer is not taken."""
+    sent = []
+    r = ParamRead(sent.append, apm.MAVLink(None), [("GPS1_TYPE", "GPS_TYPE"), "WENC_POS_Y"])
+    r.tick(0.0, 1, 1)
+    assert [m.param_id for m in sent] == ["GPS1_TYPE", "GPS_TYPE", "WENC_POS_Y"]
+    assert r.on_message(_value("GPS_TYPE", float("nan"))) is None and r.missing == ["GPS1_TYPE", "WENC_POS_Y"]
+    assert r.on_message(_value("GPS_TYPE", 14.0)) == ("GPS1_TYPE", 14.0)
+    assert r.on_message(_value("GPS1_TYPE", 1.0)) is None  # the other name answering later changes nothing
+    assert r.values == {"GPS1_TYPE": 14.0} and r.answered_by == {"GPS1_TYPE": "GPS_TYPE"}
+    r.tick(2.0, 1, 1)
+    assert [m.param_id for m in sent[3:]] == ["WENC_POS_Y"]

@@ -191,8 +191,9 @@ class AutopilotLink:
             self._watch_streams(now)
         if self.params_check is not None:
             self.params_check.tick(now, link.target_system, link.target_component)
-        if self.wheel_params is not None:
-            self.wheel_params.tick(now, link.target_system, link.target_component)
+        if self.wheel_params is not None and self.wheel_params.tick(now, link.target_system, link.target_component):
+            log.warning("no answer to PARAM_REQUEST_READ %s: the wheels' positions are the profile's "
+                        "(wheels.wheel_pos_y_m)", ", ".join(self.wheel_params.missing))
 
     def _watch_streams(self, now: float) -> None:
         """Ask again for an estimator input that stopped coming at its granted rate (`StreamWatch`)."""

@@ -15,6 +15,7 @@ from typing import Any, Callable
 from pymavlink import mavutil
 
 from taco_mav.mavlink.mavconst import GPS_TYPE_MAV
+from taco_mav.mavlink.param_read import ParamRead
 
 log = logging.getLogger(__name__)
 m = mavutil.mavlink
@@ -174,19 +175,19 @@ class MessageRequest:
             self.sent += 1
 
 
-# parameter name -> GPS instance (1 = GPS1); ArduPilot 4.6 renamed GPS_TYPE / GPS_TYPE2 to GPS1_TYPE / GPS2_TYPE
-GPS_TYPE_PARAMS = {"GPS1_TYPE": 1, "GPS2_TYPE": 2, "GPS_TYPE": 1, "GPS_TYPE2": 2}
+# GPS instance (1 = GPS1) -> the key its type is read under; ArduPilot 4.6 renamed GPS_TYPE / GPS_TYPE2 to
+# GPS1_TYPE / GPS2_TYPE, and ParamCheck asks for both names
+GPS_TYPE_KEYS = {1: "GPS1_TYPE", 2: "GPS2_TYPE"}
 
 
 # Antenna offsets differing from output.antenna_frd_m by more than this (metres, any axis) are warned about.
 ANTENNA_TOLERANCE_M = 0.05
 
 
-@dataclass
 class ParamCheck:
     """Read the GPS type of both instances once (GPS1_TYPE / GPS2_TYPE, or GPS_TYPE / GPS_TYPE2 on firmware
-    before 4.6; the autopilot answers the names it has). `gps_id` is the profile's output.gps_id: our
-    GPS_INPUT goes to instance gps_id + 1, whose type must be 14 (MAV), else `warnings` says so.
+    before 4.6; the autopilot answers the names it has) through a `ParamRead`. `gps_id` is the profile's
+    output.gps_id: our GPS_INPUT goes to instance gps_id + 1, whose type must be 14 (MAV), else `warnings` says so.
     `types`: instance -> GPSn_TYPE as answered; `value` / `answered_by`: our instance's type and the parameter
     that gave it (None until answered).
 
@@ -195,21 +196,21 @@ class ParamCheck:
     point, so a profile that sends another point is warned about (`antenna_warning`) when any axis differs by more
     than ANTENNA_TOLERANCE_M. `antenna`: axis ("X", "Y", "Z") -> metres as answered."""
 
-    send: Callable[[Any], None]
-    mav: Any
-    gps_id: int = 0
-    names: tuple[str, ...] = ("GPS1_TYPE", "GPS2_TYPE", "GPS_TYPE", "GPS_TYPE2")
-    retry_s: float = 2.0
-    tries: int = 3
-    antenna_frd_m: tuple[float, float, float] | None = None
-    value: float | None = None
-    answered_by: str | None = None
-    types: dict[int, int] = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
-    antenna: dict[str, float] = field(default_factory=dict)
-    antenna_warning: str | None = None
-    _tries: int = 0
-    _next: float = 0.0
+    def __init__(self, send: Callable[[Any], None], mav: Any, gps_id: int = 0,
+                 antenna_frd_m: tuple[float, float, float] | None = None, retry_s: float = 2.0,
+                 tries: int = 3) -> None:
+        self.gps_id, self.antenna_frd_m = gps_id, antenna_frd_m
+        n = self.instance
+        self._axis = {} if antenna_frd_m is None else {f"GPS{n}_POS_{a}": a for a in "XYZ"}
+        self.read = ParamRead(send, mav, [("GPS1_TYPE", "GPS_TYPE"), ("GPS2_TYPE", "GPS_TYPE2"),
+                                          *((key, f"GPS_POS{n}_{a}") for key, a in self._axis.items())],
+                              retry_s, tries)
+        self.value: float | None = None
+        self.answered_by: str | None = None
+        self.types: dict[int, int] = {}
+        self.warnings: list[str] = []
+        self.antenna: dict[str, float] = {}
+        self.antenna_warning: str | None = None
 
     @property
     def instance(self) -> int:
@@ -220,43 +221,26 @@ class ParamCheck:
     def antenna_names(self) -> dict[str, str]:
         """Parameter name -> axis of our instance's antenna offset (4.6 and later, then older firmware); empty
         without antenna_frd_m."""
-        if self.antenna_frd_m is None:
-            return {}
-        n = self.instance
-        return {**{f"GPS{n}_POS_{a}": a for a in "XYZ"}, **{f"GPS_POS{n}_{a}": a for a in "XYZ"}}
+        return {name: axis for key, axis in self._axis.items() for name in self.read.groups[key]}
 
     @property
     def done(self) -> bool:
-        wanted = {GPS_TYPE_PARAMS[n] for n in self.names if n in GPS_TYPE_PARAMS}
-        antenna_known = self.antenna_frd_m is None or len(self.antenna) == 3
-        return (wanted <= set(self.types) and antenna_known) or self._tries >= self.tries
+        return self.read.done
 
     def tick(self, now: float, target_system: int, target_component: int) -> None:
-        if self.done or now < self._next or not target_system:
-            return
-        self._next = now + self.retry_s
-        self._tries += 1
-        for name in self.names:
-            if GPS_TYPE_PARAMS.get(name) not in self.types:
-                self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
-        for name, axis in self.antenna_names.items():
-            if axis not in self.antenna:
-                self.send(self.mav.param_request_read_encode(target_system, target_component, name.encode(), -1))
-        if self._tries >= self.tries and self.value is None:
+        missing = self.read.tick(now, target_system, target_component)
+        if GPS_TYPE_KEYS[self.instance] in missing:
             log.warning("no answer to PARAM_REQUEST_READ GPS%d_TYPE: cannot check that the autopilot takes GPS_INPUT "
                         "(set GPS%d_TYPE=14 on ArduPilot)", self.instance, self.instance)
-        if self._tries >= self.tries and self.antenna_frd_m is not None and len(self.antenna) < 3:
+        if any(key in self._axis for key in missing):
             log.info("no answer to PARAM_REQUEST_READ GPS%d_POS_X/Y/Z: the antenna offset is not checked against "
                      "output.antenna_frd_m", self.instance)
 
-    def _on_antenna(self, pid: str, value: float) -> str | None:
+    def _on_antenna(self, pid: str, axis: str, value: float) -> str | None:
         """One antenna-offset parameter; once all three axes are known, the warning text when they differ from
         output.antenna_frd_m by more than ANTENNA_TOLERANCE_M (else None)."""
-        axis = self.antenna_names[pid]
-        if axis in self.antenna or self.antenna_frd_m is None:
-            return None
+        assert self.antenna_frd_m is not None
         self.antenna[axis] = value
-        log.info("%s=%.3f m (GPS%d antenna)", pid, value, self.instance)
         if len(self.antenna) < 3:
             return None
         ap = (self.antenna["X"], self.antenna["Y"], self.antenna["Z"])
@@ -282,24 +266,15 @@ class ParamCheck:
     def on_message(self, msg: Any) -> str | None:
         """Consume PARAM_VALUE; returns a warning text when our instance's type is not 14, or when its antenna
         offset differs from output.antenna_frd_m (`antenna_warning`)."""
-        if msg.get_type() != "PARAM_VALUE":
+        answer = self.read.on_message(msg)
+        if answer is None:
             return None
-        pid = msg.param_id.decode() if isinstance(msg.param_id, bytes) else str(msg.param_id)
-        pid = pid.rstrip("\x00")
-        antenna = pid in self.antenna_names
-        if not antenna and (pid not in self.names or pid not in GPS_TYPE_PARAMS):
-            return None
-        instance = GPS_TYPE_PARAMS.get(pid, self.instance)
-        if not antenna and instance in self.types:
-            return None
-        value = float(msg.param_value)
-        if not math.isfinite(value):  # a corrupt answer: keep asking
-            log.warning("PARAM_VALUE %s is not finite (%r): ignored", pid, value)
-            return None
-        if antenna:
-            return self._on_antenna(pid, value)
+        key, value = answer
+        pid = self.read.answered_by[key]
+        if key in self._axis:
+            return self._on_antenna(pid, self._axis[key], value)
+        instance = 1 if key == GPS_TYPE_KEYS[1] else 2
         self.types[instance] = int(round(value))
-        log.info("%s=%d (GPS%d)", pid, self.types[instance], instance)
         if instance != self.instance:
             return None
         self.value, self.answered_by = value, pid
