@@ -106,3 +106,6 @@ def test_the_wheels_profile_loads_and_reaches_the_localiser():
     assert localiser_params(p).wheels == p.wheels and localiser_params(base).wheels is None
     paper = localiser_params(dataclasses.replace(p, estimator=Estimator.PAPER))
     assert paper.plus is None  # paper mode: nothing reads the wheels
+    hand, hand_base = load_profile("ardupilot_rover_gps2_wheels"), load_profile("ardupilot_rover_gps2")
+    assert dataclasses.replace(hand, name=hand_base.name, wheels=hand_base.wheels) == hand_base
+    assert hand.wheels == p.wheels and hand.output.gps_id == 1  # the same wheels, taco_mav as GPS2

@@ -29,7 +29,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED = ("ardupilot_rover", "ardupilot_rover_gps2", "kitti", "px4_rover", "px4_rover_gps2", "synthetic",
-           "synthetic_3d", "synthetic_rover", "ardupilot_rover_wheels")
+           "synthetic_3d", "synthetic_rover", "ardupilot_rover_wheels", "ardupilot_rover_gps2_wheels")
 PX4_PARAMS = ("px4_rover_solo", "px4_rover_handover")
 AP_PARMS = ("ardupilot_rover_wheels",)
 
