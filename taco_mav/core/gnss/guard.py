@@ -18,12 +18,11 @@ Five tests; any one rejects the receiver:
 4. velocity: the same for the reading's velocity against the shadow's (a careful spoofer drags it too);
 5. camera: `camera_disagree_n` camera fixes in a row disagree with the readings around their capture, from a
    camera that agreed with them before. A camera that never agreed cannot reject the receiver: two absolute
-   sources that differ by a steady offset from the first look are a misregistered map or a camera that cannot
-   read it as often as a spoofer present from power-on, and only the camera has been shown wrong before (a
-   0.6 km world's map under another world's camera answers 25 m off with weights up to 1.0, every time in the
-   same direction). Such a camera is *refuted* (`camera_refuted`) once `camera_disagree_n` checks in a row
-   disagree by the same gap (within `camera_refute_agree_m`), and stays so until one of its fixes agrees with the
-   readings.
+   sources that differ from the first look are a misregistered map or a camera that cannot read it far more often
+   than a spoofer present from power-on, and only the camera has been shown wrong before (a map of another world
+   over the same ground puts the answers 20-25 m off beside the road, with weights up to 1.0). Such a camera is
+   *refuted* (`camera_refuted`) once `camera_disagree_n` checks in a row disagree, and stays so until one of its
+   fixes agrees with the readings: a camera earns trust by agreeing with the receiver once.
 A rejected receiver is used again only after every test has passed, with the drift and velocity statistics
 below `suspect_gate`, for `reaccept_s`; and the first reading after a rejection or a loss only if its update
 moves the estimate by at most 3 sigma of its covariance (`jump_gate`): the output never jumps further at a
@@ -173,7 +172,6 @@ class GnssGuard:
         self.camera_disagree = 0
         self.camera_gap: np.ndarray | None = None  # the last camera check: camera fix - readings, ENU m (2,)
         self.camera_agreed = False  # a camera fix has agreed with the readings: its disagreement may reject them
-        self._camera_gaps: list[np.ndarray] = []  # the gaps of the disagreeing checks since the last agreement
         self.external_flag: str | None = None  # set by another check (the camera's speed), taken at the next reading
         self.last: GuardVerdict | None = None
         self._window: deque[_Reading] = deque()
@@ -193,7 +191,8 @@ class GnssGuard:
         """The drift or velocity statistic is above suspect_gate, or a camera fix disagreed: a camera fix soon
         would settle it."""
         last = self.last
-        return self.camera_disagree > 0 or (last is not None and max(last.drift, last.velocity) > self.p.suspect_gate)
+        camera = self.camera_disagree > 0 and not self.camera_refuted  # a refuted camera casts no doubt
+        return camera or (last is not None and max(last.drift, last.velocity) > self.p.suspect_gate)
 
     # -------------------------------------------------------------- the reference
     def _reference(self, t: float, sigma_h: float, pred_xy: np.ndarray, pred_cov: np.ndarray, snap: DrSnap,
@@ -361,21 +360,16 @@ class GnssGuard:
         self.camera_gap = z - z_g
         if nis > p.camera_gate:
             self.camera_disagree += 1
-            self._camera_gaps = (self._camera_gaps + [self.camera_gap])[-p.camera_disagree_n:]
         else:
             self.camera_disagree = 0
             self.camera_agreed = True
-            self._camera_gaps = []
         return nis
 
     @property
     def camera_refuted(self) -> bool:
-        """The camera never agreed with the readings, and its last camera_disagree_n checks disagreed by the same
-        gap (ENU m, pairwise within camera_refute_agree_m): its fixes must not be used (module docstring)."""
-        gaps = self._camera_gaps
-        return (not self.camera_agreed and len(gaps) >= self.p.camera_disagree_n
-                and all(float(np.hypot(*(a - b))) <= self.p.camera_refute_agree_m
-                        for i, a in enumerate(gaps) for b in gaps[i + 1:]))
+        """The camera never agreed with the readings and its last camera_disagree_n checks disagreed: its fixes
+        must not be used (module docstring)."""
+        return not self.camera_agreed and self.camera_disagree >= self.p.camera_disagree_n
 
     @property
     def camera_floor_m(self) -> float:

@@ -96,9 +96,4 @@ class GnssParams:
     camera_check_s: float = field(default=3.0, metadata=bounded(0.0))
     camera_gate: float = field(default=13.82, metadata=bounded(0.0, open_lo=True))
     camera_disagree_n: int = field(default=2, metadata=bounded(1))
-    # A camera that never agreed with the readings and disagreed camera_disagree_n times in a row by the same gap,
-    # to within this (m), is refuted (guard.py): its fixes are refused until one agrees. The receiver's bias
-    # wanders 1.8 m RMS (above), so two honest readings of one offset differ by up to about 2.5 m; taco+'s
-    # confirm_agree_m, 3.0, is the same tolerance for two camera answers.
-    camera_refute_agree_m: float = field(default=3.0, metadata=bounded(0.0, open_lo=True))
     camera_match_s: float = field(default=1.0, metadata=bounded(0.0, open_lo=True))
