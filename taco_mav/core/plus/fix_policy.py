@@ -128,7 +128,7 @@ class PlusFixPolicy:
         else:
             gate = self.q.chi2_gate if c.support > 1 else self.q.chi2_gate_single
         figures = dict(found, sigma_fwd=inn.s_f, sigma_lat=inn.s_l, nis=inn.nis)
-        if self._refutes(inn.jump):
+        if self._refutes():
             answers.failed(FixReason.REFUTED, inn.jump, odo)
             return answer.refused(FixReason.REFUTED, **figures)
         if inn.nis > gate:
@@ -142,15 +142,15 @@ class PlusFixPolicy:
         self._fuse(tick, z, q.heading + float(cand.psi[k]), inn, state, held)
         return answer.accepted(**figures)
 
-    def _refutes(self, jump_m: float) -> bool:
+    def _refutes(self) -> bool:
         """Whether the GNSS readings refute the camera now (`GnssFusion.camera_refuted`); a lock note when that
-        starts (jump_m: this answer's distance from the estimate, m) and when it ends."""
+        starts and when it ends."""
         refuted = self.gnss.camera_refuted
         if refuted != self._refuted:
             self._refuted = refuted
             t = self.timeline.t
             if refuted:
-                self.lock.note(t, "camera_refuted", f"{jump_m:.0f} m off GNSS, never agreed")
+                self.lock.note(t, "camera_refuted", "never agreed with GNSS")
             else:
                 self.lock.note(t, "camera_agrees", "with GNSS again")
         return refuted
