@@ -167,8 +167,8 @@ CASES: dict[str, Case] = {
     # mission
     "mission_binary_missing": Case("mission --autopilot ardupilot --ardurover {T}/nobin --out {T}/m.json", 2,
                                    ("--ardurover {T}/nobin", "no such file")),
-    "mission_option_of_px4": Case("mission --autopilot ardupilot --param X=1 --out {T}/m.json", 2,
-                                  ("--param", "px4 only")),
+    "mission_option_of_px4": Case("mission --autopilot ardupilot --gcs-origin --out {T}/m.json", 2,
+                                  ("--[no-]gcs-origin", "px4 only")),
     "mission_autopilot_unknown": Case("mission --autopilot betaflight --out {T}/m.json", 2, ("--autopilot",)),
     # the command itself
     "command_unknown": Case("calibrat --images x", 2, ("calibrat",)),
