@@ -13,11 +13,10 @@ def test_at_chance_after_enough_answers_that_said_nothing_and_usable_at_the_firs
     assert h.count({"weak": 5, "at_chance": 1, "accepted": 1}) == "usable"
 
 
-def test_answers_the_gnss_refutes_are_inconsistent_not_chance() -> None:
-    """`refuted` answers disagree with the readings: they count as inconsistent, so a camera refuted on every answer
-    is not called at chance (it placed something, wrongly), and the tally says so."""
+def test_answers_the_gnss_refutes_count_as_chance() -> None:
+    """`refuted` answers come from a camera that never agreed with the GNSS readings: as good as chance, so a
+    camera refuted on every answer is called at chance (taco_mode 7), as one that says nothing is."""
     h = MatcherHealth()
-    assert h.count({"refuted": 6}) == "usable"
-    assert h.inconsistent == 1.0 and h.chance == 0.0 and h.accepted_share == 0.0
-    h.count({"refuted": 6, "weak": 6})  # the window keeps the last 10: 4 refuted, 6 weak
-    assert h.verdict == "usable" and h.chance == 0.6 and h.inconsistent == 0.4
+    assert h.count({"refuted": 6}) == "at_chance"
+    assert h.chance == 1.0 and h.inconsistent == 0.0 and h.accepted_share == 0.0
+    assert h.count({"refuted": 6, "innovation_gate": 4}) == "usable"  # 6 of 10 chance: under 0.7

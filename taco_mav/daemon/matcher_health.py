@@ -3,9 +3,9 @@
 Each answered trigger ends in one outcome (core/frames.py `FixOutcome.reason`). Over the last WINDOW of them:
 - accepted share: fixes made;
 - chance share: answers that said nothing (`at_chance`: no better than the trigger's decoys or given by too few
-  crops, core/answer_check.py; `weak`: under the mode's weight floor; `yaw_gate`: every crop's heading refused);
-- inconsistent share: answers that disagreed with the track (`innovation_gate`, `unconfirmed`) or that the GNSS
-  readings refute (`refuted`).
+  crops, core/answer_check.py; `weak`: under the mode's weight floor; `yaw_gate`: every crop's heading refused;
+  `refuted`: from a camera the GNSS readings refute, gnss/guard.py);
+- inconsistent share: answers that disagreed with the track (`innovation_gate`, `unconfirmed`).
 
 The verdict is "unknown" until MIN_ANSWERS are in, "at_chance" while none of the window was accepted and at least
 CHANCE_SHARE of it said nothing, "usable" otherwise (an accepted fix ends "at_chance" at once). Not in the paper;
@@ -24,8 +24,8 @@ __all__ = ["MatcherHealth"]
 WINDOW = 10
 MIN_ANSWERS = 6
 CHANCE_SHARE = 0.7
-CHANCE = frozenset({"at_chance", "weak", "yaw_gate"})
-INCONSISTENT = frozenset({"innovation_gate", "unconfirmed", "refuted"})
+CHANCE = frozenset({"at_chance", "weak", "yaw_gate", "refuted"})
+INCONSISTENT = frozenset({"innovation_gate", "unconfirmed"})
 ANSWERED = CHANCE | INCONSISTENT | {"accepted", "deferred", "stale", "nonfinite"}
 
 
