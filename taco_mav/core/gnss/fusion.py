@@ -279,7 +279,7 @@ class GnssFusion:
 
     @property
     def camera_refuted(self) -> bool:
-        """The readings refute the camera: it never agreed with them and keeps disagreeing by the same gap
+        """The readings refute the camera: it never agreed with them and its last checks disagreed
         (`GnssGuard.camera_refuted`); False before any reading."""
         return self.guard is not None and self.guard.camera_refuted
 
