@@ -1,5 +1,5 @@
 """Real ground/aerial pairs (datasets/real_pairs.py): the set format read with errors that name the file and key,
-and pinhole views cut from a panorama at the bearing and elevation asked."""
+pinhole views cut from a panorama at the bearing and elevation asked, and its ground seen from above."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from taco_mav.datasets.real_pairs import find_sets, load_set, pinhole_view
+from taco_mav.datasets.real_pairs import find_sets, ground_bev, load_set, pinhole_view
 from taco_mav.errors import DataError
 
 REAL_PAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_pairs"
@@ -56,6 +56,23 @@ def test_the_north_view_wraps_the_seam_without_a_jump() -> None:
     view, _ = pinhole_view(coded_panorama(), PANO, 180.0, 20.0, 41, 21, 0.0, 2.5)
     b = np.array([bearing_of(px) for px in view[10]])
     assert np.all(np.abs(b - 180.0) <= 10.5) and np.all(np.diff(b) > 0)
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.3, -0.45)])
+def test_the_ground_from_above_holds_each_point_where_the_panorama_saw_it(offset: tuple[float, float]) -> None:
+    # each pixel of the north-up view shows the panorama's ray to that point of the ground: its compass bearing
+    # from the camera and the depression angle atan(h / range), the camera at the centre plus the offset
+    m, size, h = 0.5, 80, 2.5
+    bev, rng, bearing = ground_bev(coded_panorama(), PANO, h, m, size, offset)
+    for x, y in ((40, 10), (70, 40), (41, 75), (12, 33), (55, 60)):
+        east = (x + 0.5 - size / 2 - offset[0]) * m
+        north = -(y + 0.5 - size / 2 - offset[1]) * m
+        assert rng[y, x] == pytest.approx(math.hypot(east, north))
+        want = math.degrees(math.atan2(east, north)) % 360.0
+        assert bearing[y, x] == pytest.approx(want)
+        assert abs((bearing_of(bev[y, x]) - want + 180.0) % 360.0 - 180.0) <= 0.5
+        assert float(bev[y, x, 1]) - 90.0 == pytest.approx(-math.degrees(math.atan2(h, math.hypot(east, north))),
+                                                          abs=0.5)
 
 
 def write_set(folder: Path, meta: dict, images: tuple[str, ...] = ("g.png", "a.png")) -> Path:

@@ -27,6 +27,7 @@ SECTIONS: tuple[str, ...] = (
     "taco_mav.bench.kitti_load",
     "taco_mav.bench.classical",
     "taco_mav.bench.real",
+    "taco_mav.bench.real_signal",
     "taco_mav.bench.daemon",
     "taco_mav.bench.world3d",
     "taco_mav.bench.fg2",

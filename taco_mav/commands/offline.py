@@ -49,7 +49,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
            "triggers": args.fg2_triggers, "warmup": args.fg2_warmup, "fast": not args.fg2_published,
            "compile": args.fg2_compile, "device_crops": args.fg2_device_crops}
     real = {"real_pairs": args.real_pairs, "profile": args.real_profile}
-    results = run_bench(out, only=only, progress=show_progress(args), options={"fg2": fg2, "real": real})
+    options = {"fg2": fg2, "real": real, "real_signal": {"real_pairs": args.real_pairs}}
+    results = run_bench(out, only=only, progress=show_progress(args), options=options)
     for key in sorted(results):
         print(f"{key:45s} {results[key]}")
     print(f"wrote {out}")

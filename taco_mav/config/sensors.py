@@ -74,7 +74,8 @@ class ClassicalMatcherConfig:
     # which material is brighter) or "lcn" (grey-level local contrast normalisation: blind to gain and offset only).
     # docs/matchers.md compares them on flat worlds with and without an appearance gap.
     descriptor: str = "orientation"
-    # The channel described (classical.py _to_grey): "luma" (brightness) or "unsaturated" (255 - saturation).
+    # The channel described (cvgl/descriptors.py grey_channel): "luma" (brightness), "unsaturated" (255 - saturation)
+    # or "achromatic" (how grey, from Lab chroma). docs/results.md measures each on the real pairs.
     grey: str = "luma"
     # Masks for what inverse perspective mapping cannot represent (taco_mav/cvgl/masks.py): vertical structure
     # (poles, cars, facades: long image-vertical edges, masked from their foot up) and the bottom image rows the

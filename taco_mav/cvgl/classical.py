@@ -39,7 +39,7 @@ from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import ClassicalMatcherConfig
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
-from taco_mav.cvgl.descriptors import DESCRIPTORS, describe
+from taco_mav.cvgl.descriptors import DESCRIPTORS, GREYS, describe, grey_channel
 from taco_mav.cvgl.ipm import BevProjector
 from taco_mav.cvgl.masks import MaskOptions, image_mask
 from taco_mav.errors import MatcherError
@@ -88,17 +88,6 @@ def _spectra(planes: np.ndarray) -> np.ndarray:
     return np.stack([cv2.dft(p) for p in planes])
 
 
-def _to_grey(rgb: np.ndarray, mode: str) -> np.ndarray:
-    """The one channel the matcher describes, uint8 (H, W), of an RGB image: "luma" (brightness) or
-    "unsaturated" (255 - HSV saturation: asphalt, concrete and kerbs bright, grass, foliage, soil and red roofs
-    dark; a material's colourfulness, which changes less between days than its brightness)."""
-    if mode == "luma":
-        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    if mode == "unsaturated":
-        return 255 - cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)[..., 1]
-    raise MatcherError(f"classical matcher: grey {mode!r} is not one of luma, unsaturated (profile key classical.grey)")
-
-
 def _parabola(ym: float, y0: float, yp: float) -> float:
     """Vertex offset in (-0.5, 0.5) of the parabola through (-1, ym), (0, y0), (1, yp)."""
     den = ym - 2.0 * y0 + yp
@@ -122,6 +111,9 @@ class ClassicalMatcher:
         if self.descriptor not in DESCRIPTORS:
             raise MatcherError(f"classical matcher: descriptor {self.descriptor!r} is not one of "
                                f"{', '.join(DESCRIPTORS)} (profile key classical.descriptor)")
+        if cfg.grey not in GREYS:
+            raise MatcherError(f"classical matcher: grey {cfg.grey!r} is not one of {', '.join(GREYS)} (profile key "
+                               "classical.grey)")
         self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows,
                                  vegetation=cfg.mask_vegetation,
                                  exg_min=cfg.vegetation_exg_min) if masks is None else masks
@@ -194,6 +186,7 @@ class ClassicalMatcher:
         self._fft_shape = (ny, nx)
         self._crop_px = crop_px
         self._mask_fc = self._mask_spectrum(self._mask)
+        self._n_whole: np.ndarray | None = None  # the overlap counts of a crop valid everywhere (`_denominator`)
         self._iy = np.arange(self._sy[0], self._sy[1] + 1) % ny
         self._ix = np.arange(self._sx[0], self._sx[1] + 1) % nx
 
@@ -237,7 +230,7 @@ class ClassicalMatcher:
         else:
             prod = cv2.mulSpectrums(spec, tmpl, 0, conjB=True)
         full = cv2.idft(prod, flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
-        return full[np.ix_(self._iy, self._ix)]
+        return full.take(self._iy, axis=0).take(self._ix, axis=1)  # a third of np.ix_'s time
 
     # ------------------------------------------------------------------ matching
     def _crop_px_of(self, crop: Crop) -> int:
@@ -247,13 +240,13 @@ class ClassicalMatcher:
             raise MatcherError(f"classical matcher: crop must be square RGB (S, S, 3), got {img.shape}")
         return max(8, int(round(img.shape[0] * crop.m_per_px / self.m_per_px)))
 
-    def _prepare_crop(self, crop: Crop, Sw: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _prepare_crop(self, crop: Crop, Sw: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Crop -> (spectra (C, ...) of its descriptor channels, spectrum of the channels' summed squares,
-        spectrum of its valid pixels) at the matcher's resolution, where it is Sw pixels a side (`_crop_px_of`)
-        and the FFT is set up for that size."""
+        spectrum of its valid pixels, None when it is valid everywhere) at the matcher's resolution, where it is
+        Sw pixels a side (`_crop_px_of`) and the FFT is set up for that size."""
         img = crop.image
         S = img.shape[0]
-        grey = _to_grey(img, self.cfg.grey)
+        grey = grey_channel(img, self.cfg.grey)
         valid = (img.max(axis=2) > 0) if crop.valid_fraction < 1.0 else None
         if Sw != S:
             grey = cv2.resize(grey, (Sw, Sw), interpolation=cv2.INTER_AREA)
@@ -263,19 +256,32 @@ class ClassicalMatcher:
         f = describe(self.descriptor, grey.astype(np.float32), vm, self._sigma_px)
         C = f.shape[0]
         ny, nx = self._fft_shape  # type: ignore[misc]
-        pads = np.zeros((C + 2, ny, nx), np.float32)
+        planes = C + 1 if vm is None else C + 2
+        pads = np.zeros((planes, ny, nx), np.float32)
         pads[:C, :Sw, :Sw] = f
         pads[C, :Sw, :Sw] = (f * f).sum(axis=0)
-        pads[C + 1, :Sw, :Sw] = 1.0 if vm is None else vm
+        if vm is not None:
+            pads[C + 1, :Sw, :Sw] = vm
         specs = _spectra(pads)
-        return specs[:C], specs[C], specs[C + 1]
+        return specs[:C], specs[C], None if vm is None else specs[C + 1]
 
-    def _denominator(self, prepared: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    def _overlap(self, valid: np.ndarray | None) -> np.ndarray:
+        """Pixels of the template mask on the crop's valid pixels, over the searched shifts, from the spectrum
+        of the valid pixels (None: valid everywhere, the same for every such crop of this size: computed once)."""
+        if valid is not None:
+            return np.maximum(self._corr(valid, self._mask_fc), 0.0)
+        if self._n_whole is None:
+            ones = np.zeros(self._fft_shape, np.float32)  # type: ignore[arg-type]
+            ones[: self._crop_px, : self._crop_px] = 1.0
+            self._n_whole = np.maximum(self._corr(_spectra(ones), self._mask_fc), 0.0)
+        return self._n_whole
+
+    def _denominator(self, prepared: tuple[np.ndarray, np.ndarray, np.ndarray | None]) -> np.ndarray:
         """NCC denominator over the searched shifts: sqrt(local variance of the crop's channels under the
         template mask x prorated template energy); inf where the overlap is below min_overlap."""
         chans, sq, valid = prepared
         mask_fc = self._mask_fc
-        n = np.maximum(self._corr(valid, mask_fc), 0.0)
+        n = self._overlap(valid)
         s2 = self._corr(sq, mask_fc)
         nn = np.maximum(n, 1.0)
         var = s2
@@ -294,7 +300,7 @@ class ClassicalMatcher:
         if not crops:
             return []
         image = frame.image
-        grey = _to_grey(image, self.cfg.grey) if image.ndim == 3 else image
+        grey = grey_channel(image, self.cfg.grey) if image.ndim == 3 else image
         bev, _ = self._bev.project(grey)
         view = self._base
         hidden = image_mask(image, self.camera, self.masks)

@@ -1,4 +1,5 @@
-"""Dense descriptors that the classical matcher correlates: grey-level LCN and gradient orientation (the default).
+"""Dense descriptors that the classical matcher correlates: grey-level LCN and gradient orientation (the default),
+and the one channel of a colour image they describe (`grey_channel`).
 
 Both take a float32 grey image (H, W) at the matcher's resolution and an optional float32 0/1 validity mask
 (H, W), and return channels (C, H, W) float32 that are zero where the mask is 0. The matcher correlates all
@@ -30,11 +31,38 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["DESCRIPTORS", "describe", "lcn", "orientation"]
+from taco_mav.errors import MatcherError
+
+__all__ = ["DESCRIPTORS", "GREYS", "describe", "grey_channel", "lcn", "orientation"]
 
 DESCRIPTORS = ("lcn", "orientation")
+GREYS = ("luma", "unsaturated", "achromatic")
+# "achromatic": 255 / (1 + exp((chroma - ACHROMATIC_CHROMA) / ACHROMATIC_SCALE)), chroma = |(a*, b*)| of OpenCV's
+# 8-bit Lab (128 = grey). Asphalt's chroma is under 8: its 90th percentile is 5.1 and 7.3 in the bottom-centre
+# patches of two of the three real KITTI frames (shared/data/kitti_images; the third's patch holds a car).
+ACHROMATIC_CHROMA = 8.0
+ACHROMATIC_SCALE = 2.0
 _EPS = 1e-6
 _MIN_GRADIENT = 0.25  # grey levels per pixel: below uint8 quantisation, so a flat image describes to ~0
+
+
+def grey_channel(rgb: np.ndarray, mode: str) -> np.ndarray:
+    """The one channel the matcher describes, uint8 (H, W), of an RGB image (H, W, 3): "luma" (brightness),
+    "unsaturated" (255 - HSV saturation: asphalt, concrete and kerbs bright, grass, foliage, soil and red roofs
+    dark; a material's colourfulness, which changes less between days than its brightness) or "achromatic" (how
+    grey a pixel is, from its Lab chroma: ACHROMATIC_CHROMA; a road-or-not layer, steadier than saturation in dark
+    pixels, where saturation is noise). MatcherError for another mode."""
+    if mode == "luma":
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    if mode == "unsaturated":
+        return 255 - cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)[..., 1]
+    if mode == "achromatic":
+        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)
+        chroma = np.hypot(lab[..., 1].astype(np.float32) - 128.0, lab[..., 2].astype(np.float32) - 128.0)
+        z = np.minimum((chroma - ACHROMATIC_CHROMA) / ACHROMATIC_SCALE, 80.0)
+        return np.rint(255.0 / (1.0 + np.exp(z))).astype(np.uint8)
+    raise MatcherError(f"classical matcher: grey {mode!r} is not one of {', '.join(GREYS)} (profile key "
+                       "classical.grey)")
 
 
 def _ksize(sigma_px: float) -> int:

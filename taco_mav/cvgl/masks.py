@@ -131,13 +131,30 @@ def _gradient_bands(image: np.ndarray) -> Iterator[tuple[int, int, np.ndarray, n
         r1 = min(H, r0 + _BAND_ROWS)
         a, b = max(0, r0 - _HALO), min(H, r1 + _HALO)
         img = cv2.GaussianBlur(image[a:b].astype(np.float32), (5, 5), 1.0)
-        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)[r0 - a:r1 - a]
-        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)[r0 - a:r1 - a]
-        if img.ndim == 2:
-            yield r0, r1, gx, gy
-            continue
-        k = np.argmax(gx * gx + gy * gy, axis=2)[:, :, None]
-        yield r0, r1, np.take_along_axis(gx, k, axis=2)[:, :, 0], np.take_along_axis(gy, k, axis=2)[:, :, 0]
+        planes = cv2.split(img) if img.ndim == 3 else [img]
+        grads = [(cv2.Sobel(p, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)[r0 - a:r1 - a],
+                  cv2.Sobel(p, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)[r0 - a:r1 - a]) for p in planes]
+        yield (r0, r1, *_strongest_channel(grads))
+
+
+def _strongest_channel(grads: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel gradients [(gx, gy), ...], each (rows, W), reduced to the (gx, gy) of the channel whose
+    gradient is the largest at each pixel, the first of equal ones (what argmax over the channels picks; chosen
+    by comparisons on contiguous planes, a third of the time of argmax and take_along_axis on interleaved ones)."""
+    ox, oy = grads[0]
+    if len(grads) == 1:
+        return ox, oy
+    ox, oy = ox.copy(), oy.copy()
+    best = ox * ox
+    best += oy * oy
+    for gx, gy in grads[1:]:
+        mag = gx * gx
+        mag += gy * gy
+        take = mag > best
+        np.copyto(ox, gx, where=take)
+        np.copyto(oy, gy, where=take)
+        np.maximum(best, mag, out=best)
+    return ox, oy
 
 
 def _fill_between(foot: np.ndarray, max_gap: int, tol: float) -> np.ndarray:

@@ -21,7 +21,7 @@ import numpy as np
 from taco_mav.camera.geometry import GroundCamera
 from taco_mav.errors import DataError
 
-__all__ = ["RealPair", "RealSet", "find_sets", "load_set", "pinhole_view"]
+__all__ = ["RealPair", "RealSet", "find_sets", "ground_bev", "load_set", "pinhole_view"]
 
 GROUND_TYPES = ("panorama", "pinhole")
 
@@ -145,7 +145,6 @@ def pinhole_view(pano: np.ndarray, ground: dict[str, Any], bearing_deg: float, f
     pinhole of horizontal field of view `fov_deg`, `width` x `height` px, facing compass `bearing_deg`, pitched
     `pitch_deg` down, and its flat-ground camera model (`camera_height_m` above the ground). Bilinear, the
     panorama wrapping round at its seam."""
-    H, W = pano.shape[:2]
     f = 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
     u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
@@ -156,13 +155,39 @@ def pinhole_view(pano: np.ndarray, ground: dict[str, Any], bearing_deg: float, f
     right = x
     bearing = bearing_deg + np.degrees(np.arctan2(right, fwd))
     elev = np.degrees(np.arctan2(up, np.hypot(right, fwd)))
-    col0 = float(ground["col0_bearing_deg"])
-    turn = (bearing - col0) if ground["clockwise"] else (col0 - bearing)
-    map_x = np.mod(turn, 360.0) / 360.0 * W - 0.5 + 1.0  # +1: the wrapped column padded on the left
-    el_top, el_bottom = float(ground["el_top_deg"]), float(ground["el_bottom_deg"])
-    map_y = (elev - el_top) / (el_bottom - el_top) * H - 0.5
-    padded = np.concatenate([pano[:, -1:], pano, pano[:, :1]], axis=1)
-    view = cv2.remap(padded, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
+    view = _sample_panorama(pano, ground, bearing, elev)
     K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
     return view, GroundCamera(K, int(width), int(height), float(camera_height_m), p)
+
+
+def ground_bev(pano: np.ndarray, ground: dict[str, Any], camera_height_m: float, m_per_px: float, size_px: int,
+               offset_px: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ground of an equirectangular panorama (`ground` block) projected onto a north-up bird's-eye view of
+    size_px x size_px at m_per_px, flat ground `camera_height_m` below the camera: (image (size_px, size_px[, C]),
+    range_m, bearing_deg), the last two per pixel (compass, clockwise from north). The camera stands at the
+    continuous pixel position (size_px / 2, size_px / 2) + offset_px (x right, y down, top-left corner (0, 0)), as
+    an aerial's `truth_px` places it. Bilinear, the panorama wrapping round at its seam; whatever stands on the
+    ground is smeared over it, as in any inverse perspective mapping."""
+    c = size_px / 2.0
+    y, x = np.mgrid[0:size_px, 0:size_px].astype(np.float64)
+    east = (x + 0.5 - c - offset_px[0]) * m_per_px
+    north = -(y + 0.5 - c - offset_px[1]) * m_per_px
+    rng = np.maximum(np.hypot(east, north), 1e-6)
+    bearing = np.mod(np.degrees(np.arctan2(east, north)), 360.0)
+    elev = -np.degrees(np.arctan2(camera_height_m, rng))
+    return _sample_panorama(pano, ground, bearing, elev), rng, bearing
+
+
+def _sample_panorama(pano: np.ndarray, ground: dict[str, Any], bearing_deg: np.ndarray,
+                     elev_deg: np.ndarray) -> np.ndarray:
+    """The panorama (`ground` block) sampled bilinearly at compass bearings and elevations (deg, arrays of one
+    shape), wrapping round at its seam."""
+    H, W = pano.shape[:2]
+    col0 = float(ground["col0_bearing_deg"])
+    turn = (bearing_deg - col0) if ground["clockwise"] else (col0 - bearing_deg)
+    map_x = np.mod(turn, 360.0) / 360.0 * W - 0.5 + 1.0  # +1: the wrapped column padded on the left
+    el_top, el_bottom = float(ground["el_top_deg"]), float(ground["el_bottom_deg"])
+    map_y = (elev_deg - el_top) / (el_bottom - el_top) * H - 0.5
+    padded = np.concatenate([pano[:, -1:], pano, pano[:, :1]], axis=1)
+    return cv2.remap(padded, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
