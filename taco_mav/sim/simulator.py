@@ -15,7 +15,10 @@ closed port. With `lockstep` the clock is held and moved sample by sample (each 
 clock reaches its time), at most at `speed`, and never more than `lockstep_lead_s` (one 5 Hz period) past the
 companion's last GPS_INPUT: a companion paced on this clock (`Simulator.clock` injected, as the in-process
 tests and the demo do) then always meets ArduPilot's 245 ms rule and sees the same inputs whatever its load;
-a slower companion stretches wall time instead of missing its rate.
+a slower companion stretches wall time instead of missing its rate. Until the companion's first GPS_INPUT there
+is nothing to hold the clock to (it needs the origin and the first samples to start), so the drive plays at
+real time meanwhile, as an autopilot would: at `speed` the companion's start-up work (its requests, its
+parameter reads) would leave its first estimates that many times further behind the vehicle.
 """
 
 from __future__ import annotations
@@ -307,13 +310,14 @@ class Simulator:
         self._done.set()
 
     def _lockstep_wait(self, T: float) -> None:
-        """Lockstep: pace at `speed`, and once the companion produces, never let the clock run more than
-        `lockstep_lead_s` past its last GPS_INPUT (waiting up to `lockstep_timeout_s` wall for the next, or
-        `lockstep_timeout_behind_s` while the companion is still behind after a missed wait)."""
-        pace = (T - self.clock.now()) / self.options.speed
+        """Lockstep: pace at real time until the companion's first GPS_INPUT, then at `speed`, never letting the
+        clock run more than `lockstep_lead_s` past its last GPS_INPUT (waiting up to `lockstep_timeout_s` wall for
+        the next, or `lockstep_timeout_behind_s` while the companion is still behind after a missed wait)."""
+        started = bool(self.monitor.updates)
+        pace = (T - self.clock.now()) / (self.options.speed if started else 1.0)  # real time until it produces
         if pace > 0:
             self._stop.wait(pace)
-        if not self.monitor.updates:
+        if not started:
             return
         need = T - self.options.lockstep_lead_s
         timeout = self.options.lockstep_timeout_behind_s if self._lockstep_behind else self.options.lockstep_timeout_s
