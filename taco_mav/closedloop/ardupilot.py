@@ -33,6 +33,7 @@ from typing import Any
 from taco_mav.closedloop import processes
 from taco_mav.closedloop.faults import FaultRun
 from taco_mav.closedloop.gcs import Gcs, M, arm, runaway, set_ekf_origin, wait_ekf
+from taco_mav.closedloop.instances import reserved_instance
 from taco_mav.closedloop.processes import log_tail, stop_group
 from taco_mav.closedloop.scoring import score, sent_score, shadow_score
 from taco_mav.closedloop.world import mission_world
@@ -87,20 +88,15 @@ def default_profile(setup: str) -> str:
     return "ardupilot_rover_gps2" if setup == "handover" else "ardupilot_rover"
 
 
-def free_instance() -> int:
-    """An -I instance whose TCP ports 5760+10I .. 5763+10I and UDP 5501+10I are free."""
-    for inst in range(0, 40):
-        ok = True
-        for port in range(5760 + 10 * inst, 5764 + 10 * inst):
-            with socket.socket() as s:
-                try:
-                    s.bind(("127.0.0.1", port))
-                except OSError:
-                    ok = False
-                    break
-        if ok:
-            return inst
-    raise RuntimeError("no free SITL instance ports")
+def _instance_usable(inst: int) -> bool:
+    """Whether instance -I inst's TCP ports 5760+10I .. 5763+10I are free."""
+    for port in range(5760 + 10 * inst, 5764 + 10 * inst):
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                return False
+    return True
 
 
 def read_parm_file(path: Path) -> dict[str, float]:
@@ -139,10 +135,16 @@ def sitl_params(spec: MissionSpec) -> dict[str, float]:
 
 
 def run_mission(ardurover: Path, out: Path, spec: MissionSpec, world: Path | None = None) -> dict[str, Any]:
-    """Fly `spec` on SITL with taco-mav in the loop; returns the figures (also written to OUT/result.json)."""
+    """Fly `spec` on SITL with taco-mav in the loop; returns the figures (also written to OUT/result.json). The
+    SITL instance is one no other mission holds (`reserved_instance`), held until SITL has stopped."""
     out.mkdir(parents=True, exist_ok=True)
     world = world or mission_world(out, spec)
-    inst = free_instance()
+    with reserved_instance("ardurover", range(40), _instance_usable) as inst:
+        return _fly(ardurover, out, spec, world, inst)
+
+
+def _fly(ardurover: Path, out: Path, spec: MissionSpec, world: Path, inst: int) -> dict[str, Any]:
+    """`run_mission` on SITL instance `inst`."""
     sitl_dir = out / "sitl"
     shutil.rmtree(sitl_dir, ignore_errors=True)
     sitl_dir.mkdir()

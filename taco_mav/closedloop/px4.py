@@ -38,15 +38,17 @@ from typing import Any, Callable
 
 from taco_mav.closedloop import processes
 from taco_mav.closedloop.gcs import M, arm, runaway, set_ekf_origin, wait_ekf
+from taco_mav.closedloop.instances import reserved_instance
 from taco_mav.closedloop.processes import log_tail, stop_group
 from taco_mav.closedloop.px4_sitl import (
+    FIRST_INSTANCE,
     MISSION_STATE_ACTIVE,
     MISSION_STATE_COMPLETE,
     MODE_HOLD,
     MODE_MISSION,
     TRUTH,
     Px4Gcs,
-    free_instance,
+    instance_usable,
     modes,
     read_params_file,
     set_mode,
@@ -138,7 +140,12 @@ def run_px4_mission(px4: Path, out: Path, spec: Px4MissionSpec, world: Path | No
     out.mkdir(parents=True, exist_ok=True)
     if spec.setup != "gnss":
         world = world or mission_world(out, spec)
-    inst = free_instance()
+    with reserved_instance("px4", range(FIRST_INSTANCE, FIRST_INSTANCE + 40), instance_usable) as inst:
+        return _drive_mission(px4, out, spec, world, inst)
+
+
+def _drive_mission(px4: Path, out: Path, spec: Px4MissionSpec, world: Path | None, inst: int) -> dict[str, Any]:
+    """`run_px4_mission` on PX4 instance `inst` (held by the caller until PX4 has stopped)."""
     proc = start_px4(px4, out / "px4", inst, MODELS[spec.setup], px4_params(spec))
     daemon = None
     figures: dict[str, Any] = {"instance": inst, "px4_params": px4_params(spec)}

@@ -53,13 +53,13 @@ def _lock_free(inst: int) -> bool:
         os.close(fd)
 
 
-def free_instance(first: int = 3) -> int:
-    """A PX4 instance I >= first whose lock is free and whose UDP ports are: GCS 18570+I, onboard 14580+I and
-    its remote 14540+I (the daemon binds it), and the other links rcS starts (14280+I, 13030+I, 19450+I)."""
-    for inst in range(first, first + 40):
-        if _lock_free(inst) and all(_udp_free(p + inst) for p in (18570, 14580, 14540, 14280, 13030, 19450)):
-            return inst
-    raise RuntimeError("no free PX4 instance")
+def instance_usable(inst: int) -> bool:
+    """Whether PX4 instance I's lock is free and its UDP ports are: GCS 18570+I, onboard 14580+I and its remote
+    14540+I (the daemon binds it), and the other links rcS starts (14280+I, 13030+I, 19450+I)."""
+    return _lock_free(inst) and all(_udp_free(p + inst) for p in (18570, 14580, 14540, 14280, 13030, 19450))
+
+
+FIRST_INSTANCE = 3  # instances below are left to a PX4 a user runs by hand (its default is 0)
 
 
 def prepare_px4(px4: Path, folder: Path) -> tuple[Path, Path]:
