@@ -39,7 +39,7 @@ from taco_mav.camera.geometry import GroundCamera
 from taco_mav.config import ClassicalMatcherConfig
 from taco_mav.core.types import MatchResult
 from taco_mav.cvgl.base import Crop, GroundFrame
-from taco_mav.cvgl.descriptors import DESCRIPTORS, GREYS, describe, grey_channel
+from taco_mav.cvgl.descriptors import DESCRIPTORS, check_grey, describe, grey_channel
 from taco_mav.cvgl.ipm import BevProjector
 from taco_mav.cvgl.masks import MaskOptions, image_mask
 from taco_mav.errors import MatcherError
@@ -111,9 +111,7 @@ class ClassicalMatcher:
         if self.descriptor not in DESCRIPTORS:
             raise MatcherError(f"classical matcher: descriptor {self.descriptor!r} is not one of "
                                f"{', '.join(DESCRIPTORS)} (profile key classical.descriptor)")
-        if cfg.grey not in GREYS:
-            raise MatcherError(f"classical matcher: grey {cfg.grey!r} is not one of {', '.join(GREYS)} (profile key "
-                               "classical.grey)")
+        check_grey(cfg.grey)
         self.masks = MaskOptions(vertical=cfg.mask_vertical, ego_rows=cfg.ego_mask_rows,
                                  vegetation=cfg.mask_vegetation,
                                  exg_min=cfg.vegetation_exg_min) if masks is None else masks

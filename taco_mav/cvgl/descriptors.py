@@ -33,7 +33,7 @@ import numpy as np
 
 from taco_mav.errors import MatcherError
 
-__all__ = ["DESCRIPTORS", "GREYS", "describe", "grey_channel", "lcn", "orientation"]
+__all__ = ["DESCRIPTORS", "GREYS", "check_grey", "describe", "grey_channel", "lcn", "orientation"]
 
 DESCRIPTORS = ("lcn", "orientation")
 GREYS = ("luma", "unsaturated", "achromatic")
@@ -52,17 +52,22 @@ def grey_channel(rgb: np.ndarray, mode: str) -> np.ndarray:
     dark; a material's colourfulness, which changes less between days than its brightness) or "achromatic" (how
     grey a pixel is, from its Lab chroma: ACHROMATIC_CHROMA; a road-or-not layer, steadier than saturation in dark
     pixels, where saturation is noise). MatcherError for another mode."""
+    check_grey(mode)
     if mode == "luma":
         return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     if mode == "unsaturated":
         return 255 - cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)[..., 1]
-    if mode == "achromatic":
-        lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)
-        chroma = np.hypot(lab[..., 1].astype(np.float32) - 128.0, lab[..., 2].astype(np.float32) - 128.0)
-        z = np.minimum((chroma - ACHROMATIC_CHROMA) / ACHROMATIC_SCALE, 80.0)
-        return np.rint(255.0 / (1.0 + np.exp(z))).astype(np.uint8)
-    raise MatcherError(f"classical matcher: grey {mode!r} is not one of {', '.join(GREYS)} (profile key "
-                       "classical.grey)")
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)  # achromatic
+    chroma = np.hypot(lab[..., 1].astype(np.float32) - 128.0, lab[..., 2].astype(np.float32) - 128.0)
+    z = np.minimum((chroma - ACHROMATIC_CHROMA) / ACHROMATIC_SCALE, 80.0)
+    return np.rint(255.0 / (1.0 + np.exp(z))).astype(np.uint8)
+
+
+def check_grey(mode: str) -> None:
+    """MatcherError naming the profile key when `mode` is not one of GREYS."""
+    if mode not in GREYS:
+        raise MatcherError(f"classical matcher: grey {mode!r} is not one of {', '.join(GREYS)} (profile key "
+                           "classical.grey)")
 
 
 def _ksize(sigma_px: float) -> int:

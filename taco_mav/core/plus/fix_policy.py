@@ -2,10 +2,10 @@
 lost (answer_check.py), a weak answer deferred while the filter can wait, the chi-square innovation gate against
 the track (tighter for an uncorroborated answer), every answer refused while the GNSS readings refute the camera
 (gnss/guard.py: it never agreed with them and its last checks disagreed), a jump held until a second answer
-confirms it (answer_hold.py),
-the fix noise learnt from earlier fixes (noise.py), the camera speed's and the wheels' scale errors entering the
-filter where the fix can take it out (speed_scale.py, wheel_scale.py; the fix also teaches the wheels' scale), and the answer's rotation as a measurement of the true heading. Every
-answered trigger without an accepted fix counts towards loss of lock (lock.py).
+confirms it (answer_hold.py), the fix noise learnt from earlier fixes (noise.py), the camera speed's and the
+wheels' scale errors entering the filter where the fix can take it out (speed_scale.py, wheel_scale.py; the fix
+also teaches the wheels' scale), and the answer's rotation as a measurement of the true heading. Every answered
+trigger without an accepted fix counts towards loss of lock (lock.py).
 
 World frame ENU metres, headings ENU radians, times autopilot seconds.
 """
@@ -91,9 +91,8 @@ class PlusFixPolicy:
 
     def __init__(self, timeline: Timeline, desk: QueryDesk, params: LocaliserParams, q: PlusParams, *,
                  gnss: GnssFusion, lock: LockMonitor, progress: Progress, answers: AnswerHold,
-                 fix_scale: FixNoiseScale,
-                 report_factor: VarianceFactor, scale: ScaleConsider, zero: ZeroVelocity, guard: SafetyGuard,
-                 feedback: Callable[[Tick], None], wheels: WheelAiding | None = None) -> None:
+                 fix_scale: FixNoiseScale, report_factor: VarianceFactor, scale: ScaleConsider, zero: ZeroVelocity,
+                 guard: SafetyGuard, feedback: Callable[[Tick], None], wheels: WheelAiding | None = None) -> None:
         self.timeline, self.desk, self.p, self.q = timeline, desk, params, q
         self.lock, self.progress, self.answers, self.fix_scale = lock, progress, answers, fix_scale
         self.report_factor, self.scale, self.zero, self.guard = report_factor, scale, zero, guard
