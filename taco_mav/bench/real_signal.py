@@ -82,32 +82,55 @@ def ncc_map(aerial: np.ndarray, template: np.ndarray, mask: np.ndarray) -> np.nd
     return num / (np.sqrt(var * energy) + 1e-6)
 
 
-def score_view(pano: np.ndarray, aerial: np.ndarray, rset: RealSet, truth_px: tuple[float, float], grey: str,
-               descriptor: str, fov_deg: float, bearing_deg: float) -> Signal:
-    """The signal of one view (a wedge of fov_deg about compass bearing_deg; 360: all round) on its aerial."""
+@dataclass(frozen=True)
+class PlaceGround:
+    """One place as every view of it is scored: the panorama's ground from above (`ground_bev`, the camera on the
+    template at (half, half) plus the truth's fraction of a pixel, so that the truth is a whole placement), each
+    pixel's range (m) and compass bearing (deg), the aerial window the search covers, its scale (m/px) and the
+    searched radius (px)."""
+
+    bev: np.ndarray
+    range_m: np.ndarray
+    bearing_deg: np.ndarray
+    window: np.ndarray
+    m_per_px: float
+    radius_px: int
+
+
+def place_ground(pano: np.ndarray, aerial: np.ndarray, rset: RealSet, truth_px: tuple[float, float]) -> PlaceGround:
+    """The ground of one place (PlaceGround); DataError when the aerial does not hold the ground and the search."""
     m = rset.m_per_px
     half = int(math.ceil(MAX_RANGE_M / m)) + 2
     size = 2 * half
     r_px = int(math.ceil(RADIUS_M / m))
     tx, ty = truth_px
     ix, iy = int(math.floor(tx)), int(math.floor(ty))
-    # the camera on the template at (half, half) + the truth's fraction of a pixel: the truth is a whole placement
-    bev, rng, bearing = ground_bev(pano, rset.ground, rset.camera_height_m, m, size, (tx - ix, ty - iy))
-    keep = (rng >= MIN_RANGE_M) & (rng <= MAX_RANGE_M)
-    if fov_deg < 360.0:
-        keep &= np.abs(np.mod(bearing - bearing_deg + 180.0, 360.0) - 180.0) <= fov_deg / 2.0
-    mask = keep.astype(np.float32)
     top, left = iy - half - r_px, ix - half - r_px
     bottom, right = iy - half + r_px + size, ix - half + r_px + size
     if top < 0 or left < 0 or bottom > aerial.shape[0] or right > aerial.shape[1]:
         raise DataError(f"{rset.folder}: the aerial ({aerial.shape[1]} x {aerial.shape[0]} px) does not hold "
                         f"{MAX_RANGE_M:.0f} m of ground plus {RADIUS_M:.0f} m of search around truth_px {truth_px}")
-    window = aerial[top:bottom, left:right]
-    score = ncc_map(_channels(window, grey, descriptor, None, m), _channels(bev, grey, descriptor, mask, m), mask)
-    truth = float(score[r_px, r_px])
-    best = np.unravel_index(int(np.argmax(score)), score.shape)
-    err = math.hypot(best[0] - r_px, best[1] - r_px) * m
-    return Signal(float(np.mean(score < truth)), err)
+    bev, rng, bearing = ground_bev(pano, rset.ground, rset.camera_height_m, m, size, (tx - ix, ty - iy))
+    return PlaceGround(bev, rng, bearing, aerial[top:bottom, left:right], m, r_px)
+
+
+def score(g: PlaceGround, grey: str, descriptor: str, fov_deg: float, bearing_deg: float) -> Signal:
+    """The signal of one view of a place: a wedge of fov_deg about compass bearing_deg (360: all round)."""
+    keep = (g.range_m >= MIN_RANGE_M) & (g.range_m <= MAX_RANGE_M)
+    if fov_deg < 360.0:
+        keep &= np.abs(np.mod(g.bearing_deg - bearing_deg + 180.0, 360.0) - 180.0) <= fov_deg / 2.0
+    mask = keep.astype(np.float32)
+    m, r = g.m_per_px, g.radius_px
+    scores = ncc_map(_channels(g.window, grey, descriptor, None, m), _channels(g.bev, grey, descriptor, mask, m), mask)
+    truth = float(scores[r, r])
+    best = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    return Signal(float(np.mean(scores < truth)), math.hypot(best[0] - r, best[1] - r) * m)
+
+
+def score_view(pano: np.ndarray, aerial: np.ndarray, rset: RealSet, truth_px: tuple[float, float], grey: str,
+               descriptor: str, fov_deg: float, bearing_deg: float) -> Signal:
+    """`score` of one view, the place's ground made for it (`place_ground`)."""
+    return score(place_ground(pano, aerial, rset, truth_px), grey, descriptor, fov_deg, bearing_deg)
 
 
 def evaluate(root: Path, seed: int = 0) -> dict[str, Any]:
@@ -116,15 +139,14 @@ def evaluate(root: Path, seed: int = 0) -> dict[str, Any]:
     if not sets:
         raise DataError(f"{root}: no panorama set (the signal is measured all round)")
     rng = np.random.default_rng(seed)
-    places = [(rset, pair, read_rgb(pair.ground), read_rgb(pair.aerial), float(rng.uniform(0.0, 90.0)))
-              for rset in sets for pair in rset.pairs]
+    places = [(place_ground(read_rgb(pair.ground), read_rgb(pair.aerial), rset, pair.truth_px),
+               float(rng.uniform(0.0, 90.0))) for rset in sets for pair in rset.pairs]
     keys: dict[str, Any] = {}
     for grey in GREYS:
         for descriptor in SIGNAL_DESCRIPTORS:
             for fov in FOV_DEG:
                 bearings = (0.0,) if fov >= 360.0 else WEDGE_BEARINGS_DEG
-                signals = [score_view(pano, aerial, rset, pair.truth_px, grey, descriptor, fov, b + turn)
-                           for rset, pair, pano, aerial, turn in places for b in bearings]
+                signals = [score(g, grey, descriptor, fov, b + turn) for g, turn in places for b in bearings]
                 prefix = f"real_signal_{grey}_{descriptor}_fov{fov:.0f}"
                 err = np.array([s.error_m for s in signals])
                 keys[f"{prefix}_truth_percentile"] = float(np.median([s.truth_percentile for s in signals]))
